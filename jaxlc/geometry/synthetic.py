@@ -1,0 +1,103 @@
+"""Synthetic geometry: a fixed Sun and an observer sweeping phase angle and range."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pandas as pd
+
+from jaxlc.errors import JaxlcError
+from jaxlc.photometry import AU_M
+from jaxlc.tables import format_utc
+
+
+def synthetic_geometry(
+    duration_s: float = 1200.0,
+    step_s: float = 1.0,
+    phase_start_deg: float = 20.0,
+    phase_end_deg: float = 120.0,
+    range_start_m: float = 1.0e6,
+    range_end_m: float | None = None,
+    exposure_s: float = 1.0,
+    start_utc: str = "2019-07-07T12:00:00Z",
+    sun_ra_deg: float = 0.0,
+    sun_dec_deg: float = 0.0,
+    tilt_deg: float = 0.0,
+) -> pd.DataFrame:
+    """A geometry table with no orbit behind it.
+
+    The object sits at the origin, the Sun at 1 AU in the direction
+    (``sun_ra_deg``, ``sun_dec_deg``). The observer is at ``range`` metres in a
+    direction making the phase angle α(t) with the Sun direction; α and the
+    range change linearly from start to end. The observer moves in the plane
+    through the Sun direction and Q = ẑ × ŝ (the equator's node), tilted about
+    ŝ by ``tilt_deg``.
+
+    Args:
+        duration_s: length of the table; ``round(duration_s / step_s)`` rows.
+        step_s: time between rows (s).
+        phase_start_deg, phase_end_deg: phase angle at the first and last row, 0…180.
+        range_start_m, range_end_m: observer distance (default: constant).
+        exposure_s: exposure time of every row (s).
+        start_utc: ISO 8601 time of the first row.
+        sun_ra_deg, sun_dec_deg: inertial direction of the Sun.
+        tilt_deg: rotation of the observer's plane about the Sun direction.
+
+    Returns:
+        A geometry table (``frame = synthetic``) with every row visible.
+
+    Example:
+        >>> geo = synthetic_geometry(duration_s=600, phase_start_deg=10, phase_end_deg=90)
+        >>> len(geo), geo.attrs["frame"]
+        (600, 'synthetic')
+    """
+    range_end_m = range_start_m if range_end_m is None else range_end_m
+    checks = [
+        ("duration_s", duration_s, duration_s > 0, "must be > 0"),
+        ("step_s", step_s, step_s > 0, "must be > 0"),
+        ("phase_start_deg", phase_start_deg, 0 <= phase_start_deg <= 180, "must be in [0, 180]"),
+        ("phase_end_deg", phase_end_deg, 0 <= phase_end_deg <= 180, "must be in [0, 180]"),
+        ("range_start_m", range_start_m, range_start_m > 0, "must be > 0"),
+        ("range_end_m", range_end_m, range_end_m > 0, "must be > 0"),
+        ("exposure_s", exposure_s, exposure_s >= 0, "must be ≥ 0"),
+        ("sun_dec_deg", sun_dec_deg, -90 <= sun_dec_deg <= 90, "must be in [-90, 90]"),
+    ]
+    for name, value, ok, why in checks:
+        if not (math.isfinite(value) and ok):
+            raise JaxlcError(f"synthetic geometry: {name} = {value!r} {why}")
+    n = round(duration_s / step_s)
+    if not 1 <= n <= 10_000_000:
+        raise JaxlcError(f"synthetic geometry: duration_s / step_s = {n} rows; must be 1 … 10⁷")
+    try:
+        start = pd.Timestamp(start_utc)
+    except ValueError as exc:
+        raise JaxlcError(f"synthetic geometry: start_utc = {start_utc!r} is not ISO 8601") from exc
+    start = start.tz_localize("UTC") if start.tzinfo is None else start.tz_convert("UTC")
+
+    t = np.arange(n) * step_s
+    frac = t / t[-1] if n > 1 else np.zeros(1)
+    alpha = np.radians(phase_start_deg + (phase_end_deg - phase_start_deg) * frac)
+    rng = range_start_m + (range_end_m - range_start_m) * frac
+
+    ra, dec = math.radians(sun_ra_deg), math.radians(sun_dec_deg)
+    s = np.array([math.cos(dec) * math.cos(ra), math.cos(dec) * math.sin(ra), math.sin(dec)])
+    q = np.array([-math.sin(ra), math.cos(ra), 0.0])
+    tilt = math.radians(tilt_deg)
+    e = math.cos(tilt) * q + math.sin(tilt) * np.cross(s, q)
+    obs_dir = np.cos(alpha)[:, None] * s + np.sin(alpha)[:, None] * e
+    obs = rng[:, None] * obs_dir
+    sun = np.broadcast_to(AU_M * s, (n, 3))
+
+    times = start + pd.to_timedelta(t, unit="s")
+    df = pd.DataFrame({"utc": format_utc(times), "t_s": t})
+    for name, arr in (("rso", np.zeros((n, 3))), ("sun", sun), ("obs", obs)):
+        for k, c in enumerate("xyz"):
+            df[f"{name}_{c}_m"] = arr[:, k]
+    df["exposure_s"] = float(exposure_s)
+    df["elevation_deg"] = np.nan
+    df["sun_elevation_deg"] = np.nan
+    df["shadow_nu"] = 1.0
+    df["visible"] = True
+    df.attrs["frame"] = "synthetic"
+    return df

@@ -1,0 +1,144 @@
+"""Strict scene parsing: every error names the key."""
+
+from __future__ import annotations
+
+import pytest
+from helpers import SCENES
+
+import jaxlc
+from jaxlc.brdf import AshikhminShirley, Lambert
+from jaxlc.errors import SceneError
+
+BASE = """
+[object]
+mesh = "@MESHES@/falcon9_upper_stage.obj"
+
+[[material]]
+part = "*"
+brdf = "ashikhmin-shirley"
+rd = 0.5
+rs = 0.1
+nu = 100
+
+[attitude]
+model = "spin"
+body_axis = [1, 0, 0]
+pole_ra_deg = 30.0
+pole_dec_deg = 60.0
+period_s = 82.6
+"""
+
+
+@pytest.mark.parametrize("path", sorted(SCENES.glob("*.toml")), ids=lambda p: p.stem)
+def test_shipped_scenes_parse(path):
+    scene = jaxlc.load_scene(path)
+    assert scene.mesh_path.is_file()
+    assert len(scene.materials_for(scene.facets.part_names)) == len(scene.facets.part_names)
+
+
+def test_base_scene_defaults(write_scene):
+    scene = jaxlc.load_scene(write_scene(BASE))
+    brdf = scene.materials[0].brdf
+    assert isinstance(brdf, AshikhminShirley) and brdf.nv == brdf.nu == 100.0
+    assert not brdf.anisotropic
+    assert scene.exposure_s == 1.0 and scene.attitude.phase_deg == 0.0
+    assert scene.attitude.epoch_utc is None
+
+
+def test_part_override(write_scene):
+    text = BASE + '\n[[material]]\npart = "nozzle"\nbrdf = "lambert"\nrd = 0.2\n'
+    scene = jaxlc.load_scene(write_scene(text))
+    mats = scene.materials_for(scene.facets.part_names)
+    by_name = dict(zip(scene.facets.part_names, mats, strict=True))
+    assert isinstance(by_name["nozzle"], Lambert)
+    assert isinstance(by_name["body"], AshikhminShirley)
+
+
+BAD = [
+    (BASE.replace("rd = 0.5", "rd = 1.5"), r"rd = 1\.5 is outside \[0, 1\]"),
+    (BASE.replace("rs = 0.1", "rs = -0.1"), r"rs = -0\.1 is outside \[0, 1\]"),
+    (BASE.replace("period_s = 82.6", "period_s = 0.0"), r"period_s = 0\.0 must be > 0"),
+    (BASE.replace("period_s = 82.6", "period_s = -3"), r"period_s = -3\.0 must be > 0"),
+    (
+        BASE.replace("body_axis = [1, 0, 0]", "body_axis = [0, 0, 0]"),
+        "body_axis .* must not be the zero vector",
+    ),
+    (
+        BASE.replace("body_axis = [1, 0, 0]", "body_axis = [1, 0]"),
+        "body_axis .* must be a list of 3",
+    ),
+    (
+        BASE.replace("pole_dec_deg = 60.0", "pole_dec_deg = 95.0"),
+        r"pole_dec_deg = 95\.0 is outside",
+    ),
+    (
+        BASE.replace("period_s = 82.6", "period_s = 82.6\nperiod = 3"),
+        "unknown key 'period'; did you mean 'period_s'",
+    ),
+    (BASE.replace("period_s = 82.6\n", ""), "missing required key 'period_s'"),
+    (BASE.replace("rd = 0.5\n", ""), "missing required key 'rd'"),
+    (BASE.replace('brdf = "ashikhmin-shirley"', 'brdf = "phong"'), "brdf = 'phong' is not one of"),
+    (BASE.replace('brdf = "ashikhmin-shirley"', 'brdf = "lambert"'), "unknown key 'nu'"),
+    (BASE.replace("nu = 100", 'nu = "high"'), "nu = 'high' must be a number"),
+    (BASE.replace("nu = 100", "nu = nan"), "must be finite"),
+    (
+        BASE.replace('model = "spin"', 'model = "wobble"'),
+        "model = 'wobble' must be 'spin' or 'fixed'",
+    ),
+    (BASE.replace('model = "spin"', 'model = "tumble"'), "not implemented yet"),
+    (BASE + "\n[sensor]\nexposure_s = 0\n", r"exposure_s = 0\.0 must be > 0"),
+    (BASE + "\n[sensor]\nexposure = 1\n", "unknown key 'exposure'"),
+    (BASE + "\n[render]\nfast = true\n", "unknown key 'render'"),
+    (BASE.replace("[object]", "[objects]"), "missing required key 'object'"),
+    (BASE.replace("falcon9_upper_stage.obj", "nope.obj"), "mesh = .*nope.obj.* not found"),
+    (
+        BASE.replace("pole_ra_deg = 30.0", 'pole_ra_deg = 30.0\nepoch_utc = "yesterday"'),
+        "epoch_utc = 'yesterday' is not an ISO 8601",
+    ),
+    (
+        BASE + '\n[[material]]\npart = "*"\nbrdf = "lambert"\nrd = 0.1\n',
+        "part '\\*' is given twice",
+    ),
+    ("[object\nmesh=1", "not valid TOML"),
+]
+
+
+@pytest.mark.parametrize(("text", "message"), BAD)
+def test_bad_scene_errors_name_the_key(write_scene, text, message):
+    with pytest.raises(SceneError, match=message):
+        jaxlc.load_scene(write_scene(text))
+
+
+def test_unknown_part_and_missing_material(write_scene):
+    text = BASE + '\n[[material]]\npart = "solar_panel"\nbrdf = "lambert"\nrd = 0.2\n'
+    scene = jaxlc.load_scene(write_scene(text))
+    with pytest.raises(SceneError, match=r"part = 'solar_panel' is not a part of .*parts: nozzle"):
+        scene.materials_for(scene.facets.part_names)
+    no_default = BASE.replace('part = "*"', 'part = "body"')
+    scene = jaxlc.load_scene(write_scene(no_default))
+    with pytest.raises(SceneError, match=r"part 'nozzle' .* has no material"):
+        scene.materials_for(scene.facets.part_names)
+
+
+def test_fixed_quaternion_checks(write_scene):
+    fixed = BASE.split("[attitude]")[0] + '[attitude]\nmodel = "fixed"\nquaternion = [2, 0, 0, 0]\n'
+    with pytest.raises(SceneError, match="has norm 2; give a unit quaternion"):
+        jaxlc.load_scene(write_scene(fixed))
+    ok = fixed.replace("[2, 0, 0, 0]", "[0.5, 0.5, 0.5, 0.5]")
+    assert jaxlc.load_scene(write_scene(ok)).attitude.quaternion == (0.5, 0.5, 0.5, 0.5)
+
+
+def test_missing_scene_file(tmp_path):
+    with pytest.raises(SceneError, match="does not exist"):
+        jaxlc.load_scene(tmp_path / "none.toml")
+
+
+def test_mesh_relative_to_scene_file(tmp_path):
+    import shutil
+
+    from helpers import MESHES
+
+    shutil.copy(MESHES / "cubesat_3u.obj", tmp_path / "sat.obj")
+    text = BASE.replace('"@MESHES@/falcon9_upper_stage.obj"', '"sat.obj"')
+    (tmp_path / "s.toml").write_text(text)
+    assert jaxlc.load_scene(tmp_path / "s.toml").mesh_path == (tmp_path / "sat.obj").resolve()
