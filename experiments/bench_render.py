@@ -1,0 +1,394 @@
+"""Speed and accuracy of the JAX facet model (``make bench``).
+
+Three tables, all from one run on one machine (absolute seconds drift on a
+shared machine; compare ratios within a run):
+
+A. one light curve of 1,800 samples (a 30-minute pass at 1 Hz) per standard
+   scene S2–S6, float32 and float64: samples/s, facet-samples/s (facets after
+   merging) and the float32 error against float64 over the same pass;
+B. bulk: a batch of objects with random spin states rendered by ``jax.vmap``
+   (the path of dataset generation): light curves/s;
+C. the facet kernel itself on S2 (5,120 facets) and S4 (1,205 facets) with an
+   Ashikhmin–Shirley material: a naive unfused JAX sum (whole facets × samples
+   arrays, as a first implementation would write it) against the fused,
+   chunked kernel with XLA's default CPU pipeline and with jaxlc's options.
+
+Every time is the median of repeated calls after a warm-up (compilation not
+included), with the interquartile range as its error. Writes
+``experiments/results/bench_render.csv``.
+
+    python experiments/bench_render.py [--quick] [--out PATH]
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import math
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pandas as pd
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE.parent))
+
+import jaxlc  # noqa: E402
+from jaxlc import photometry  # noqa: E402
+from jaxlc.attitude import Spin  # noqa: E402
+from jaxlc.brdf import AshikhminShirley, facet_intensity, facet_model  # noqa: E402
+from jaxlc.render import (  # noqa: E402
+    compiler_options,
+    geometry_arrays,
+    light_curve_intensity,
+    space_object,
+    stack_objects,
+    time_chunk,
+)
+from jaxlc.tables import validate_geometry, write_table  # noqa: E402
+
+SCENES = {
+    "S2": "s2_sphere",
+    "S3": "s3_cylinder",
+    "S4": "s4_falcon9",
+    "S5": "s5_cubesat",
+    "S6": "s6_boxwing",
+}
+
+
+def timed(fn, min_total_s=1.0, min_reps=5, max_reps=40):
+    """Median and interquartile range (s) of repeated calls after one warm-up."""
+    jax.block_until_ready(fn())
+    times = []
+    start = time.perf_counter()
+    while len(times) < min_reps or (
+        time.perf_counter() - start < min_total_s and len(times) < max_reps
+    ):
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn())
+        times.append(time.perf_counter() - t0)
+    q25, med, q75 = np.percentile(times, [25, 50, 75])
+    return float(med), float(q75 - q25), len(times)
+
+
+def timed_interleaved(fns: dict, min_total_s=1.0, min_rounds=5, max_rounds=40):
+    """Like :func:`timed` for several variants, run in alternation so that
+    machine-load drift affects them alike (their ratios are what matters)."""
+    for fn in fns.values():
+        jax.block_until_ready(fn())
+    times = {k: [] for k in fns}
+    start = time.perf_counter()
+    rounds = 0
+    while rounds < min_rounds or (
+        time.perf_counter() - start < min_total_s * len(fns) and rounds < max_rounds
+    ):
+        for k, fn in fns.items():
+            t0 = time.perf_counter()
+            jax.block_until_ready(fn())
+            times[k].append(time.perf_counter() - t0)
+        rounds += 1
+    out = {}
+    for k, ts in times.items():
+        q25, med, q75 = np.percentile(ts, [25, 50, 75])
+        out[k] = (float(med), float(q75 - q25), len(ts))
+    return out
+
+
+def pass_geometry(n_samples: int):
+    geo = jaxlc.synthetic_geometry(
+        duration_s=float(n_samples),
+        step_s=1.0,
+        phase_start_deg=20,
+        phase_end_deg=120,
+        range_start_m=1.0e6,
+        range_end_m=2.0e6,
+    )
+    return geometry_arrays(validate_geometry(geo))
+
+
+def single_curves(geo, repeats_s):
+    rows = []
+    for sid, name in SCENES.items():
+        scene = jaxlc.load_scene(HERE / "scenes" / f"{name}.toml")
+        exact = scene.attitude.exact_parameters()
+        mags = {}
+        for precision, dtype in (("float32", jnp.float32), ("float64", jnp.float64)):
+            with jax.enable_x64(precision == "float64"):
+                obj = space_object(scene, geo.origin_utc, dtype)
+                times = obj.attitude.times(geo.t_eval_s, **exact)
+                s = jnp.asarray(geo.sun_dir, dtype)
+                v = jnp.asarray(geo.obs_dir, dtype)
+                f = jax.jit(light_curve_intensity, compiler_options=compiler_options())
+                med, iqr, reps = timed(
+                    lambda f=f, o=obj, t=times, s=s, v=v: f(o, t, s, v), repeats_s
+                )
+                i = np.asarray(f(obj, times, s, v), np.float64)
+            mags[precision] = photometry.magnitude(
+                photometry.flux_w_m2(i, geo.irradiance_w_m2, geo.range_m)
+            )
+            n, nf = len(geo.t_eval_s), obj.model.n_facets
+            rows.append(
+                dict(
+                    table="A",
+                    scene=sid,
+                    facets=nf,
+                    triangles=scene.facets.n_triangles,
+                    precision=precision,
+                    variant="jaxlc",
+                    batch=1,
+                    samples=n,
+                    seconds=med,
+                    seconds_iqr=iqr,
+                    repeats=reps,
+                    samples_per_s=n / med,
+                    facet_samples_per_s=n * nf / med,
+                    lightcurves_per_s=1 / med,
+                )
+            )
+        ok = np.isfinite(mags["float32"]) & np.isfinite(mags["float64"])
+        dm = np.abs(mags["float32"][ok] - mags["float64"][ok])
+        for r in rows[-2:]:
+            r.update(
+                f32_err_median_mag=float(np.median(dm)),
+                f32_err_p99_mag=float(np.percentile(dm, 99)),
+                f32_err_max_mag=float(dm.max()),
+            )
+    return rows
+
+
+def random_spins(scene, n, rng, dtype):
+    """n copies of a scene's object with isotropic poles, log-uniform 5–200 s periods."""
+    base = space_object(scene, None, dtype)
+    pole = rng.normal(size=(n, 3))
+    pole /= np.linalg.norm(pole, axis=1, keepdims=True)
+    objs = []
+    for k in range(n):
+        spin = Spin.from_degrees(
+            body_axis=rng.normal(size=3),
+            pole_ra_deg=math.degrees(math.atan2(pole[k, 1], pole[k, 0])),
+            pole_dec_deg=math.degrees(math.asin(pole[k, 2])),
+            period_s=float(np.exp(rng.uniform(np.log(5), np.log(200)))),
+            phase_deg=float(rng.uniform(0, 360)),
+            dtype=dtype,
+        )
+        objs.append(jaxlc.SpaceObject(base.model, spin))
+    return objs
+
+
+def bulk(geo, batch, repeats_s):
+    rows = []
+    rng = np.random.default_rng(0)
+    f = jax.jit(
+        jax.vmap(light_curve_intensity, in_axes=(0, 0, None, None)),
+        compiler_options=compiler_options(),
+    )
+    s = jnp.asarray(geo.sun_dir, jnp.float32)
+    v = jnp.asarray(geo.obs_dir, jnp.float32)
+    for sid in ("S3", "S4", "S5", "S6"):
+        scene = jaxlc.load_scene(HERE / "scenes" / f"{SCENES[sid]}.toml")
+        objs = random_spins(scene, batch, rng, jnp.float32)
+        stacked = stack_objects(objs)
+        times = jax.tree_util.tree_map(
+            lambda *x: jnp.stack(x), *[o.attitude.times(geo.t_eval_s) for o in objs]
+        )
+        med, iqr, reps = timed(lambda st=stacked, tm=times: f(st, tm, s, v), repeats_s)
+        n, nf = len(geo.t_eval_s), stacked.model.n_facets
+        rows.append(
+            dict(
+                table="B",
+                scene=sid,
+                facets=nf,
+                triangles=scene.facets.n_triangles,
+                precision="float32",
+                variant="jaxlc, vmap",
+                batch=batch,
+                samples=n,
+                seconds=med,
+                seconds_iqr=iqr,
+                repeats=reps,
+                samples_per_s=batch * n / med,
+                facet_samples_per_s=batch * n * nf / med,
+                lightcurves_per_s=batch / med,
+            )
+        )
+    return rows
+
+
+def naive_as_sum(normals, u, w, area, rd, rs, nu, nv, s, v):
+    """A first implementation: whole (F, T) arrays by matrix products, the formula as written."""
+    mu0 = normals @ s.T
+    mu = normals @ v.T
+    h = (s + v) / jnp.linalg.norm(s + v, axis=-1, keepdims=True)
+    nh = normals @ h.T
+    hu = u @ h.T
+    hw = w @ h.T
+    hs = jnp.sum(h * s, axis=-1)[None, :]
+    lit = (mu0 > 0) & (mu > 0)
+    rho_d = 28 * rd / (23 * jnp.pi) * (1 - rs) * (1 - (1 - mu0 / 2) ** 5) * (1 - (1 - mu / 2) ** 5)
+    z = (nu * hu**2 + nv * hw**2) / jnp.maximum(1 - nh**2, 1e-12)
+    fresnel = rs + (1 - rs) * (1 - hs) ** 5
+    rho_s = jnp.sqrt((nu + 1) * (nv + 1)) / (8 * jnp.pi) * jnp.maximum(nh, 1e-30) ** z
+    rho_s = rho_s / (hs * jnp.maximum(mu0, mu)) * fresnel
+    return jnp.sum(jnp.where(lit, area[:, None] * (rho_d + rho_s) * mu0 * mu, 0.0), axis=0)
+
+
+def _chunked_kernel(model, s, v, chunk):
+    """The fused kernel over time chunks (what light_curve_intensity runs per chunk)."""
+    blocks = (s.reshape(-1, chunk, 3), v.reshape(-1, chunk, 3))
+    return jax.lax.map(lambda a: facet_intensity(model, a[0], a[1]), blocks).reshape(-1)
+
+
+def kernel_variants(geo, repeats_s):
+    rows = []
+    n = len(geo.t_eval_s)
+    rng = np.random.default_rng(1)
+    s = rng.normal(size=(n, 3))
+    v = rng.normal(size=(n, 3))
+    s = jnp.asarray(s / np.linalg.norm(s, axis=1, keepdims=True), jnp.float32)
+    v = jnp.asarray(v / np.linalg.norm(v, axis=1, keepdims=True), jnp.float32)
+    brdf = AshikhminShirley(rd=0.5, rs=0.2, nu=100.0, nv=100.0)
+    for sid, mesh in (("S2", "sphere_L4.obj"), ("S4", "falcon9_upper_stage.obj")):
+        facets = jaxlc.facets_from_mesh(jaxlc.load_mesh(HERE.parent / "meshes" / mesh))
+        model = facet_model(facets, [brdf] * len(facets.part_names), jnp.float32)
+        nf = model.n_facets
+        area = jnp.asarray(facets.areas_m2, jnp.float32)
+        naive = jax.jit(naive_as_sum)
+        naive_args = (
+            model.normals,
+            model.tangent_u,
+            model.tangent_w,
+            area,
+            0.5,
+            0.2,
+            100.0,
+            100.0,
+            s,
+            v,
+        )
+        chunk = time_chunk(nf)
+        pad = (-n) % chunk
+        sp = jnp.pad(s, ((0, pad), (0, 0)))
+        vp = jnp.pad(v, ((0, pad), (0, 0)))
+        fused_default = jax.jit(functools.partial(_chunked_kernel, chunk=chunk))
+        fused_jaxlc = jax.jit(
+            functools.partial(_chunked_kernel, chunk=chunk), compiler_options=compiler_options()
+        )
+        variants = {
+            "naive unfused": functools.partial(naive, *naive_args),
+            "fused, XLA defaults": functools.partial(fused_default, model, sp, vp),
+            "fused, jaxlc options": functools.partial(fused_jaxlc, model, sp, vp),
+        }
+        ref = np.asarray(naive(*naive_args))
+        fused = np.asarray(variants["fused, jaxlc options"]())[:n]
+        agreement = float(np.max(np.abs(fused - ref)) / np.max(ref))
+        timings = timed_interleaved(variants, repeats_s)
+        naive_s = timings["naive unfused"][0]
+        for name, (med, iqr, reps) in timings.items():
+            rows.append(
+                dict(
+                    table="C",
+                    scene=sid,
+                    facets=nf,
+                    triangles=facets.n_triangles,
+                    precision="float32",
+                    variant=name,
+                    batch=1,
+                    samples=n,
+                    seconds=med,
+                    seconds_iqr=iqr,
+                    repeats=reps,
+                    samples_per_s=n / med,
+                    facet_samples_per_s=n * nf / med,
+                    lightcurves_per_s=1 / med,
+                    speedup_vs_naive=naive_s / med,
+                    naive_vs_fused_max_rel_diff=agreement,
+                )
+            )
+    return rows
+
+
+def print_table(df: pd.DataFrame) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(
+        title="jaxlc render benchmark: median over repeats ± IQR",
+        caption="A: one 1,800-sample curve per scene; B: a vmapped batch with random spins; "
+        "C: the AS facet kernel alone (float32)",
+    )
+    for col in (
+        "table",
+        "scene",
+        "facets",
+        "precision",
+        "variant",
+        "batch",
+        "ms/call",
+        "samples/s",
+        "facet-samples/s",
+        "curves/s",
+        "f32 err med/max (mag)",
+    ):
+        table.add_column(col, justify="right" if col not in ("table", "variant") else "left")
+    for r in df.itertuples():
+        err = ""
+        if isinstance(getattr(r, "f32_err_max_mag", None), float) and not math.isnan(
+            r.f32_err_max_mag
+        ):
+            err = f"{r.f32_err_median_mag:.1e} / {r.f32_err_max_mag:.1e}"
+        table.add_row(
+            r.table,
+            r.scene,
+            str(r.facets),
+            r.precision,
+            r.variant,
+            str(r.batch),
+            f"{r.seconds * 1e3:.2f} ± {r.seconds_iqr * 1e3:.2f}",
+            f"{r.samples_per_s:.3g}",
+            f"{r.facet_samples_per_s:.3g}",
+            f"{r.lightcurves_per_s:.3g}",
+            err,
+        )
+    Console(width=170).print(table)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--quick", action="store_true", help="few samples and repeats (smoke test)")
+    parser.add_argument("--out", type=Path, default=HERE / "results" / "bench_render.csv")
+    args = parser.parse_args(argv)
+    n_samples, batch, repeats_s = (120, 4, 0.05) if args.quick else (1800, 64, 1.0)
+    geo = pass_geometry(n_samples)
+    rows = (
+        single_curves(geo, repeats_s)
+        + bulk(geo, batch, repeats_s)
+        + kernel_variants(geo, repeats_s)
+    )
+    df = pd.DataFrame(rows)
+    df.attrs.update(
+        {
+            "generator": "experiments/bench_render.py",
+            "jaxlc": jaxlc.__version__,
+            "jax": jax.__version__,
+            "backend": jax.default_backend(),
+            "devices": ", ".join(d.device_kind for d in jax.devices()),
+            "cpu_count": str(os.cpu_count()),
+            "machine": f"{platform.machine()} {platform.processor() or ''}".strip(),
+            "date_utc": pd.Timestamp.now(tz="UTC").strftime("%Y-%m-%dT%H:%M:%SZ"),
+            "quick": str(args.quick),
+        }
+    )
+    print_table(df)
+    write_table(df, args.out)
+    print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
