@@ -100,6 +100,28 @@ def timed_interleaved(fns: dict, min_total_s=1.0, min_rounds=5, max_rounds=40):
     return out
 
 
+def _row(table, scene, facets, triangles, precision, variant, batch, samples, timing, **extra):
+    """One result row: the timing (median, IQR, repeats) and the rates derived from it."""
+    med, iqr, reps = timing
+    return dict(
+        table=table,
+        scene=scene,
+        facets=facets,
+        triangles=triangles,
+        precision=precision,
+        variant=variant,
+        batch=batch,
+        samples=samples,
+        seconds=med,
+        seconds_iqr=iqr,
+        repeats=reps,
+        samples_per_s=batch * samples / med,
+        facet_samples_per_s=batch * samples * facets / med,
+        lightcurves_per_s=batch / med,
+        **extra,
+    )
+
+
 def pass_geometry(n_samples: int):
     geo = jaxlc.synthetic_geometry(
         duration_s=float(n_samples),
@@ -125,30 +147,22 @@ def single_curves(geo, repeats_s):
                 s = jnp.asarray(geo.sun_dir, dtype)
                 v = jnp.asarray(geo.obs_dir, dtype)
                 f = jax.jit(light_curve_intensity, compiler_options=compiler_options())
-                med, iqr, reps = timed(
-                    lambda f=f, o=obj, t=times, s=s, v=v: f(o, t, s, v), repeats_s
-                )
+                timing = timed(functools.partial(f, obj, times, s, v), repeats_s)
                 i = np.asarray(f(obj, times, s, v), np.float64)
             mags[precision] = photometry.magnitude(
                 photometry.flux_w_m2(i, geo.irradiance_w_m2, geo.range_m)
             )
-            n, nf = len(geo.t_eval_s), obj.model.n_facets
             rows.append(
-                dict(
-                    table="A",
-                    scene=sid,
-                    facets=nf,
-                    triangles=scene.facets.n_triangles,
-                    precision=precision,
-                    variant="jaxlc",
-                    batch=1,
-                    samples=n,
-                    seconds=med,
-                    seconds_iqr=iqr,
-                    repeats=reps,
-                    samples_per_s=n / med,
-                    facet_samples_per_s=n * nf / med,
-                    lightcurves_per_s=1 / med,
+                _row(
+                    "A",
+                    sid,
+                    obj.model.n_facets,
+                    scene.facets.n_triangles,
+                    precision,
+                    "jaxlc",
+                    1,
+                    len(geo.t_eval_s),
+                    timing,
                 )
             )
         ok = np.isfinite(mags["float32"]) & np.isfinite(mags["float64"])
@@ -197,24 +211,18 @@ def bulk(geo, batch, repeats_s):
         times = jax.tree_util.tree_map(
             lambda *x: jnp.stack(x), *[o.attitude.times(geo.t_eval_s) for o in objs]
         )
-        med, iqr, reps = timed(lambda st=stacked, tm=times: f(st, tm, s, v), repeats_s)
-        n, nf = len(geo.t_eval_s), stacked.model.n_facets
+        timing = timed(functools.partial(f, stacked, times, s, v), repeats_s)
         rows.append(
-            dict(
-                table="B",
-                scene=sid,
-                facets=nf,
-                triangles=scene.facets.n_triangles,
-                precision="float32",
-                variant="jaxlc, vmap",
-                batch=batch,
-                samples=n,
-                seconds=med,
-                seconds_iqr=iqr,
-                repeats=reps,
-                samples_per_s=batch * n / med,
-                facet_samples_per_s=batch * n * nf / med,
-                lightcurves_per_s=batch / med,
+            _row(
+                "B",
+                sid,
+                stacked.model.n_facets,
+                scene.facets.n_triangles,
+                "float32",
+                "jaxlc, vmap",
+                batch,
+                len(geo.t_eval_s),
+                timing,
             )
         )
     return rows
@@ -289,24 +297,19 @@ def kernel_variants(geo, repeats_s):
         agreement = float(np.max(np.abs(fused - ref)) / np.max(ref))
         timings = timed_interleaved(variants, repeats_s)
         naive_s = timings["naive unfused"][0]
-        for name, (med, iqr, reps) in timings.items():
+        for name, timing in timings.items():
             rows.append(
-                dict(
-                    table="C",
-                    scene=sid,
-                    facets=nf,
-                    triangles=facets.n_triangles,
-                    precision="float32",
-                    variant=name,
-                    batch=1,
-                    samples=n,
-                    seconds=med,
-                    seconds_iqr=iqr,
-                    repeats=reps,
-                    samples_per_s=n / med,
-                    facet_samples_per_s=n * nf / med,
-                    lightcurves_per_s=1 / med,
-                    speedup_vs_naive=naive_s / med,
+                _row(
+                    "C",
+                    sid,
+                    nf,
+                    facets.n_triangles,
+                    "float32",
+                    name,
+                    1,
+                    n,
+                    timing,
+                    speedup_vs_naive=naive_s / timing[0],
                     naive_vs_fused_max_rel_diff=agreement,
                 )
             )
