@@ -16,13 +16,16 @@ $(STAMP): pyproject.toml requirements/constraints.txt
 		-c requirements/constraints.txt -e '.[test,dask]'
 	@touch $@
 
-## demo: a spinning Falcon 9 second stage over a synthetic 20-minute pass (CSV + PNG)
+## demo: a tumbling Falcon 9 second stage over a real 20-minute pass seen from Mt Stromlo
 demo: setup
-	$(BIN)/jaxlc geometry synthetic -o $(DEMO)/geometry.csv --duration-s 1200 --step-s 1 \
-		--phase-start-deg 25 --phase-end-deg 110 --range-km 1200 --range-end-km 2600
+	$(BIN)/jaxlc passes --tle data/tle/falcon9_rb.tle --norad 45921 --site mt-stromlo \
+		--start 2020-08-10T00:00:00Z --days 1
+	$(BIN)/jaxlc geometry pass --tle data/tle/falcon9_rb.tle --norad 45921 --site mt-stromlo \
+		--start 2020-08-10T18:00:00Z --duration-s 1200 --step-s 1 --exposure-s 1 \
+		-o $(DEMO)/geometry.csv
 	$(BIN)/jaxlc render experiments/scenes/s4_falcon9.toml $(DEMO)/geometry.csv \
 		-o $(DEMO)/lightcurve.csv --plot $(DEMO)/lightcurve.png
-	@echo "demo output: $(DEMO)/lightcurve.csv, $(DEMO)/lightcurve.png"
+	@echo "demo output: $(DEMO)/geometry.csv, $(DEMO)/lightcurve.csv, $(DEMO)/lightcurve.png"
 
 ## test: the whole suite
 test: setup
@@ -31,6 +34,7 @@ test: setup
 ## bench: speed and accuracy tables (CSV under experiments/results/)
 bench: setup
 	$(BIN)/python experiments/bench_render.py
+	$(BIN)/python experiments/bench_geometry.py
 
 ## lint: ruff
 lint: setup

@@ -183,7 +183,8 @@ def validate_geometry(df: pd.DataFrame) -> pd.DataFrame:
     """Check a geometry table and return a clean copy with every column present.
 
     Numbers become float64, ``visible`` bool, ``utc`` ISO strings; optional
-    columns get their defaults. Positions may be NaN only on invisible rows.
+    columns get their defaults; other columns are kept after the contract's.
+    Positions may be NaN only on invisible rows.
 
     Raises:
         TableError: naming the table, the column, the row and the value.
@@ -206,6 +207,9 @@ def validate_geometry(df: pd.DataFrame) -> pd.DataFrame:
             out[name] = _float_column(df, name) if name in df.columns else default
     times = parse_utc(df["utc"], where)
     out.insert(0, "utc", format_utc(times) if len(df) else [])
+    for name in df.columns:  # extra columns (e.g. sgp4_error) travel unchanged
+        if name not in out.columns:
+            out[name] = df[name].to_numpy()
 
     t = out["t_s"].to_numpy()
     vis = out["visible"].to_numpy()

@@ -13,7 +13,13 @@ import jaxlc
 def test_bench_render_quick(tmp_path):
     out = tmp_path / "bench.csv"
     r = subprocess.run(
-        [sys.executable, str(REPO / "experiments" / "bench_render.py"), "--quick", "--out", str(out)],
+        [
+            sys.executable,
+            str(REPO / "experiments" / "bench_render.py"),
+            "--quick",
+            "--out",
+            str(out),
+        ],
         capture_output=True,
         text=True,
         timeout=600,
@@ -26,3 +32,24 @@ def test_bench_render_quick(tmp_path):
     # the naive and the fused kernels compute the same sum
     assert (df[df.table == "C"]["naive_vs_fused_max_rel_diff"] < 1e-5).all()
     assert df.attrs["backend"] and df.attrs["jax"]  # provenance travels with the CSV
+
+
+def test_bench_geometry_quick(tmp_path):
+    out = tmp_path / "geo.csv"
+    r = subprocess.run(
+        [
+            sys.executable,
+            str(REPO / "experiments" / "bench_geometry.py"),
+            "--quick",
+            "--out",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert r.returncode == 0, r.stderr
+    df = jaxlc.read_table(out)
+    assert df["stage"].iloc[0].startswith("find_passes")
+    assert (df["object_samples_per_s"] > 0).all()
+    assert (df["position_error_vs_skyfield_m"] < 0.01).all()  # interpolated nutation: < 1 cm
