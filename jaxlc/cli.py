@@ -130,6 +130,9 @@ LonOpt = Annotated[float | None, typer.Option("--lon-deg", help="Site longitude 
 AltOpt = Annotated[float | None, typer.Option("--alt-m", help="Site height above WGS84 (m).")]
 MinElOpt = Annotated[float, typer.Option(help="Object visible above this elevation (°).")]
 MaxSunOpt = Annotated[float, typer.Option(help="Sun below this elevation at the site (°).")]
+MinNuOpt = Annotated[
+    float, typer.Option(help="Object sunlit: Earth-shadow ν above this (0 = any sunlight).")
+]
 TleOpt = Annotated[
     Path, typer.Option("--tle", help="TLE file (2- or 3-line, any number of epochs).")
 ]
@@ -191,6 +194,7 @@ def passes(
     step_s: Annotated[float, typer.Option(help="Sampling step (s); start/end accuracy.")] = 1.0,
     min_elevation_deg: MinElOpt = 15.0,
     max_sun_elevation_deg: MaxSunOpt = -6.0,
+    min_shadow_nu: MinNuOpt = 0.0,
     csv: Annotated[
         Path | None, typer.Option("--csv", help="Also write the passes (.csv/.parquet).")
     ] = None,
@@ -205,7 +209,7 @@ def passes(
 
     where = site_from(site, lat_deg, lon_deg, alt_m)
     t0 = _utc(start)
-    rules = Visibility(min_elevation_deg, max_sun_elevation_deg)
+    rules = Visibility(min_elevation_deg, max_sun_elevation_deg, min_shadow_nu)
     objs = _objects(tle, norad, name, t0)
     with Progress(console=_console(), transient=True) as bar:
         task = bar.add_task(f"{len(objs)} object(s), {days:g} d", total=None)
@@ -271,6 +275,7 @@ def geometry_pass(
     exposure_s: Annotated[float, typer.Option(help="Exposure time per row (s).")] = 1.0,
     min_elevation_deg: MinElOpt = 15.0,
     max_sun_elevation_deg: MaxSunOpt = -6.0,
+    min_shadow_nu: MinNuOpt = 0.0,
 ):
     """Write the geometry table of one object over a window (every row; `visible` flags)."""
     from jaxlc.errors import JaxlcError
@@ -286,7 +291,7 @@ def geometry_pass(
         raise JaxlcError(
             f"{tle} holds {len(objs)} objects ({labels}…); choose one with --norad or --name"
         )
-    rules = Visibility(min_elevation_deg, max_sun_elevation_deg)
+    rules = Visibility(min_elevation_deg, max_sun_elevation_deg, min_shadow_nu)
     df = geometry_table(objs[0], where, t0, duration_s, step_s, exposure_s, rules)
     write_table(df, output)
     n_vis = int(df["visible"].sum())
