@@ -35,6 +35,7 @@ test: setup
 bench: setup
 	$(BIN)/python experiments/bench_render.py
 	$(BIN)/python experiments/bench_geometry.py
+	$(BIN)/python experiments/pareto.py
 
 ## lint: ruff
 lint: setup

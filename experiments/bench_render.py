@@ -28,7 +28,6 @@ import math
 import os
 import platform
 import sys
-import time
 from pathlib import Path
 
 import jax
@@ -38,6 +37,9 @@ import pandas as pd
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
+sys.path.insert(0, str(HERE))
+
+from timing import timed, timed_interleaved  # noqa: E402
 
 import jaxlc  # noqa: E402
 from jaxlc import photometry  # noqa: E402
@@ -60,44 +62,6 @@ SCENES = {
     "S5": "s5_cubesat",
     "S6": "s6_boxwing",
 }
-
-
-def timed(fn, min_total_s=1.0, min_reps=5, max_reps=40):
-    """Median and interquartile range (s) of repeated calls after one warm-up."""
-    jax.block_until_ready(fn())
-    times = []
-    start = time.perf_counter()
-    while len(times) < min_reps or (
-        time.perf_counter() - start < min_total_s and len(times) < max_reps
-    ):
-        t0 = time.perf_counter()
-        jax.block_until_ready(fn())
-        times.append(time.perf_counter() - t0)
-    q25, med, q75 = np.percentile(times, [25, 50, 75])
-    return float(med), float(q75 - q25), len(times)
-
-
-def timed_interleaved(fns: dict, min_total_s=1.0, min_rounds=5, max_rounds=40):
-    """Like :func:`timed` for several variants, run in alternation so that
-    machine-load drift affects them alike (their ratios are what matters)."""
-    for fn in fns.values():
-        jax.block_until_ready(fn())
-    times = {k: [] for k in fns}
-    start = time.perf_counter()
-    rounds = 0
-    while rounds < min_rounds or (
-        time.perf_counter() - start < min_total_s * len(fns) and rounds < max_rounds
-    ):
-        for k, fn in fns.items():
-            t0 = time.perf_counter()
-            jax.block_until_ready(fn())
-            times[k].append(time.perf_counter() - t0)
-        rounds += 1
-    out = {}
-    for k, ts in times.items():
-        q25, med, q75 = np.percentile(ts, [25, 50, 75])
-        out[k] = (float(med), float(q75 - q25), len(ts))
-    return out
 
 
 def _row(table, scene, facets, triangles, precision, variant, batch, samples, timing, **extra):
@@ -316,6 +280,68 @@ def kernel_variants(geo, repeats_s):
     return rows
 
 
+def plan_costs(geo, repeats_s, quick):
+    """D: shadowed / unshadowed (S4, S6) and blurred / sharp (S5) cost, interleaved.
+
+    The shadow precomputation is timed with the cache bypassed (a one-off cost
+    per mesh and resolution; later renders load the table from disk).
+    """
+    from jaxlc.blur import subexposure_times
+    from jaxlc.render import body_intensity  # noqa: F401  (documents what is timed)
+    from jaxlc.shadow import shadow_data
+
+    rows = []
+    f = jax.jit(light_curve_intensity, compiler_options=compiler_options())
+    n_samples = len(geo.t_eval_s)
+    for sid, name in (("S4", "s4_falcon9"), ("S6", "s6_boxwing"), ("S5", "s5_cubesat")):
+        scene = jaxlc.load_scene(HERE / "scenes" / f"{name}.toml")
+        exact = scene.attitude.exact_parameters()
+        plain = space_object(scene, geo.origin_utc, jnp.float32)
+        variants, extra = {}, {}
+        s = jnp.asarray(geo.sun_dir, jnp.float32)
+        v = jnp.asarray(geo.obs_dir, jnp.float32)
+        t1 = plain.attitude.times(geo.t_eval_s, **exact)
+        variants["plain"] = functools.partial(f, plain, t1, s, v)
+        if not scene.facets.convex:
+            settings = scene.render.shadow
+            if not quick:
+                data = shadow_data(
+                    jaxlc.load_mesh(scene.mesh_path), scene.facets, settings, use_cache=False
+                )
+                extra = dict(
+                    precompute_s=data.seconds, table_mb=data.nbytes / 1e6, subpoints=data.subpoints
+                )
+            shadowed = space_object(scene, geo.origin_utc, jnp.float32, shadow=settings)
+            variants["shadows"] = functools.partial(f, shadowed, t1, s, v)
+        else:
+            from jaxlc.plan import make_plan
+
+            n = make_plan(scene, geo).subsamples
+            tn = plain.attitude.times(subexposure_times(geo.t_start_s, geo.exposure_s, n), **exact)
+            sn = jnp.asarray(np.repeat(geo.sun_dir, n, axis=0), jnp.float32)
+            vn = jnp.asarray(np.repeat(geo.obs_dir, n, axis=0), jnp.float32)
+            variants[f"blur, {n} sub-exposures"] = functools.partial(f, plain, tn, sn, vn)
+        timings = timed_interleaved(variants, repeats_s)
+        base = timings["plain"][0]
+        for name_v, timing in timings.items():
+            rows.append(
+                _row(
+                    "D",
+                    sid,
+                    plain.model.n_facets,
+                    scene.facets.n_triangles,
+                    "float32",
+                    name_v,
+                    1,
+                    n_samples,
+                    timing,
+                    cost_vs_plain=timing[0] / base,
+                    **(extra if name_v == "shadows" else {}),
+                )
+            )
+    return rows
+
+
 def print_table(df: pd.DataFrame) -> None:
     from rich.console import Console
     from rich.table import Table
@@ -323,7 +349,7 @@ def print_table(df: pd.DataFrame) -> None:
     table = Table(
         title="jaxlc render benchmark: median over repeats ± IQR",
         caption="A: one 1,800-sample curve per scene; B: a vmapped batch with random spins; "
-        "C: the AS facet kernel alone (float32)",
+        "C: the AS facet kernel alone (float32); D: shadows and blur against the plain render",
     )
     for col in (
         "table",
@@ -337,6 +363,7 @@ def print_table(df: pd.DataFrame) -> None:
         "facet-samples/s",
         "curves/s",
         "f32 err med/max (mag)",
+        "× plain",
     ):
         table.add_column(col, justify="right" if col not in ("table", "variant") else "left")
     for r in df.itertuples():
@@ -357,6 +384,10 @@ def print_table(df: pd.DataFrame) -> None:
             f"{r.facet_samples_per_s:.3g}",
             f"{r.lightcurves_per_s:.3g}",
             err,
+            f"{r.cost_vs_plain:.2f}"
+            if isinstance(getattr(r, "cost_vs_plain", None), float)
+            and not math.isnan(r.cost_vs_plain)
+            else "",
         )
     Console(width=170).print(table)
 
@@ -372,6 +403,7 @@ def main(argv=None) -> int:
         single_curves(geo, repeats_s)
         + bulk(geo, batch, repeats_s)
         + kernel_variants(geo, repeats_s)
+        + plan_costs(geo, repeats_s, args.quick)
     )
     df = pd.DataFrame(rows)
     df.attrs.update(

@@ -264,10 +264,10 @@ def _as_diffuse_shape(mu):
     return x * (5.0 + x * (-10.0 + x * (10.0 + x * (-5.0 + x))))
 
 
-def facet_intensity(
+def facet_contributions(
     model: FacetModel, sun_b: Float[Array, "T 3"], obs_b: Float[Array, "T 3"]
-) -> Float[Array, " T"]:
-    """Radiant intensity per unit irradiance, I/E = Σ_f A ρ (n·s)(n·v), in m² sr⁻¹.
+) -> Float[Array, "T F"]:
+    """Per-facet terms A ρ (n·s)(n·v) (m² sr⁻¹), zero unless lit and seen.
 
     Args:
         model: facets and materials.
@@ -275,10 +275,7 @@ def facet_intensity(
         obs_b: (T, 3) unit vectors object→observer in the body frame.
 
     Returns:
-        (T,) I/E. Multiply by the irradiance and divide by range² for the flux.
-
-    Finite, with finite gradients, at grazing angles, at phase angles of 0°
-    and 180° and for exponents up to 10⁵ in float32.
+        (T, F) contributions; their sum over facets is :func:`facet_intensity`.
     """
     s, v = sun_b, obs_b
     n = model.normals
@@ -294,7 +291,34 @@ def facet_intensity(
     total = mu0 * mu * k if model.use_lambert or model.use_as_diffuse else 0.0
     if model.use_specular:
         total = total + _specular(model, s, v, mu0, mu)
-    return jnp.sum(total, axis=-1)
+    return total
+
+
+def facet_intensity(
+    model: FacetModel,
+    sun_b: Float[Array, "T 3"],
+    obs_b: Float[Array, "T 3"],
+    weights: Float[Array, "T F"] | None = None,
+) -> Float[Array, " T"]:
+    """Radiant intensity per unit irradiance, I/E = Σ_f w_f A ρ (n·s)(n·v), in m² sr⁻¹.
+
+    Args:
+        model: facets and materials.
+        sun_b: (T, 3) unit vectors object→Sun in the body frame.
+        obs_b: (T, 3) unit vectors object→observer in the body frame.
+        weights: optional (T, F) factors per facet and sample, e.g. the lit and
+            seen fraction of facets that can be shadowed.
+
+    Returns:
+        (T,) I/E. Multiply by the irradiance and divide by range² for the flux.
+
+    Finite, with finite gradients, at grazing angles, at phase angles of 0°
+    and 180° and for exponents up to 10⁵ in float32.
+    """
+    terms = facet_contributions(model, sun_b, obs_b)
+    if weights is not None:
+        terms = terms * weights
+    return jnp.sum(terms, axis=-1)
 
 
 def _specular(model: FacetModel, s, v, mu0, mu):

@@ -41,6 +41,35 @@ def _root(
     """jaxlc: scene + geometry → light curve."""
 
 
+def _render_options(scene, shadows, shadow_grid, subsamples):
+    """The scene's [render] options with the command line's overrides."""
+    import dataclasses
+
+    from jaxlc.errors import JaxlcError
+    from jaxlc.shadow import ShadowSettings
+
+    opts = scene.render
+    if shadows is not None:
+        opts = dataclasses.replace(opts, shadows=shadows)
+    if shadow_grid is not None:
+        opts = dataclasses.replace(opts, shadow=dataclasses.replace(opts.shadow, grid=shadow_grid))
+        ShadowSettings.__post_init__(opts.shadow)
+    if subsamples is not None:
+        if subsamples == "auto":
+            opts = dataclasses.replace(opts, blur="auto", subsamples=None)
+        elif subsamples == "off":
+            opts = dataclasses.replace(opts, blur="off", subsamples=None)
+        else:
+            try:
+                n = int(subsamples)
+            except ValueError:
+                raise JaxlcError(
+                    f"--subsamples = {subsamples!r} must be auto, off or a whole number"
+                ) from None
+            opts = dataclasses.replace(opts, subsamples=n)
+    return opts
+
+
 @app.command()
 def render(
     scene: Annotated[Path, typer.Argument(help="Scene file (TOML).")],
@@ -52,28 +81,57 @@ def render(
         Path | None, typer.Option("--plot", help="Also save a plot (.png, .pdf, .svg).")
     ] = None,
     precision: Annotated[str, typer.Option(help="float32 (fast) or float64.")] = "float32",
+    explain: Annotated[
+        bool, typer.Option("--explain", help="Print the render plan before rendering.")
+    ] = False,
+    shadows: Annotated[
+        str | None, typer.Option(help="auto or off (default: the scene's [render]).")
+    ] = None,
+    shadow_grid: Annotated[
+        int | None, typer.Option(help="Shadow direction grid side N (N² directions).")
+    ] = None,
+    subsamples: Annotated[
+        str | None, typer.Option(help="Sub-exposures: auto, off or a number.")
+    ] = None,
 ):
     """Render SCENE over GEOMETRY into a light-curve table."""
+    from rich.progress import Progress
+
     import jaxlc
+    from jaxlc.plan import make_plan
+    from jaxlc.render import geometry_arrays
     from jaxlc.tables import write_table
 
     t0 = time.perf_counter()
     sc = jaxlc.load_scene(scene)
     table = jaxlc.read_geometry(geometry)
-    lc = jaxlc.render(sc, table, precision=precision)
+    options = _render_options(sc, shadows, shadow_grid, subsamples)
+    plan = make_plan(sc, geometry_arrays(table, sc.exposure_s), options)
+    if explain:
+        _console().print(plan.explain(), highlight=False)
+    with Progress(console=_console(), transient=True) as bar:
+        task = None
+
+        def traced(done, total):
+            nonlocal task
+            if task is None:
+                task = bar.add_task("tracing the shadow table (cached afterwards)", total=total)
+            bar.update(task, completed=done)
+
+        lc = jaxlc.render(sc, table, precision=precision, options=options, progress=traced)
     elapsed = time.perf_counter() - t0
     write_table(lc, output)
     if plot is not None:
         from jaxlc.plot import plot_lightcurve
 
         plot_lightcurve(lc, plot, title=f"{Path(sc.source).stem}: {sc.mesh_path.name}")
-    f = sc.facets
     vis = int(lc["visible"].sum())
     _console().print(
         f"rendered {len(lc)} samples ({vis} visible) of {sc.mesh_path.name} "
-        f"({f.n_triangles} triangles → {f.n_facets} facets, "
-        f"{'convex' if f.convex else 'non-convex'}) in {elapsed:.2f} s, {precision} → {output}"
-        + (f", {plot}" if plot else "")
+        f"({plan.triangles} triangles → {plan.facets} facets, "
+        f"{'convex' if plan.convex else 'non-convex'}, "
+        f"{'shadows' if plan.shadow else 'no shadows'}, {plan.subsamples} sub-exposure(s)) "
+        f"in {elapsed:.2f} s, {precision} → {output}" + (f", {plot}" if plot else "")
     )
 
 

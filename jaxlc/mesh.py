@@ -93,6 +93,22 @@ class Facets:
         """True when no facet can be shadowed: the object never shadows itself."""
         return not bool(np.any(self.can_shadow))
 
+    def subset(self, ids: np.ndarray) -> Facets:
+        """These facets only (in this order), e.g. to give them their own material model."""
+        ids = np.asarray(ids, dtype=np.int64)
+        remap = np.full(self.n_facets, -1, dtype=np.int64)
+        remap[ids] = np.arange(len(ids))
+        tri = np.where(self.triangle_facet >= 0, remap[np.maximum(self.triangle_facet, 0)], -1)
+        return dataclasses.replace(
+            self,
+            normals=self.normals[ids],
+            areas_m2=self.areas_m2[ids],
+            centroids_m=self.centroids_m[ids],
+            part=self.part[ids],
+            can_shadow=self.can_shadow[ids],
+            triangle_facet=tri,
+        )
+
 
 # ---------------------------------------------------------------------------
 # Reading

@@ -31,9 +31,13 @@ from jaxtyping import Array, Float, PyTree
 
 from jaxlc import photometry
 from jaxlc.attitude import AbstractAttitude
+from jaxlc.blur import subexposure_times
 from jaxlc.brdf import FacetModel, facet_intensity, facet_model
 from jaxlc.errors import JaxlcError
+from jaxlc.mesh import load_mesh
+from jaxlc.plan import RenderOptions, RenderPlan, make_plan
 from jaxlc.scene import Scene, load_scene
+from jaxlc.shadow import ShadowSettings, ShadowTable, lit_seen_fraction, shadow_data, shadow_table
 from jaxlc.tables import read_geometry, validate_geometry
 
 PRECISIONS = {"float32": jnp.float32, "float64": jnp.float64}
@@ -42,16 +46,52 @@ CHUNK_ELEMENTS = 1 << 18
 
 
 class SpaceObject(eqx.Module):
-    """Everything about the object that the renderer traces: shape, materials, attitude."""
+    """Everything about the object that the renderer traces.
+
+    Attributes:
+        model: all facets. With shadows, those that cannot be shadowed come
+            first and the ``shadow`` table's facets follow, in its order.
+        attitude: body → inertial rotation over time.
+        shadow: visibility table of the facets that can be shadowed
+            (:mod:`jaxlc.shadow`), or None (no shadow work).
+        free: number of leading facets that cannot be shadowed (static).
+    """
 
     model: FacetModel
     attitude: AbstractAttitude
+    shadow: ShadowTable | None = None
+    free: int = eqx.field(static=True, default=0)
+
+    @property
+    def n_facets(self) -> int:
+        return self.model.n_facets
 
 
 def time_chunk(n_facets: int) -> int:
     """Samples per chunk so that a chunk × facets block is about CHUNK_ELEMENTS."""
     c = CHUNK_ELEMENTS // max(n_facets, 1)
     return int(min(1024, max(8, 1 << max(3, c.bit_length() - 1))))
+
+
+def body_intensity(
+    obj: SpaceObject, sun_b: Float[Array, "T 3"], obs_b: Float[Array, "T 3"]
+) -> Float[Array, " T"]:
+    """I/E (m² sr⁻¹) for body-frame Sun and observer directions (no attitude).
+
+    Facets that can be shadowed are weighted by their lit-and-seen fraction.
+    """
+    if obj.shadow is None:
+        return facet_intensity(obj.model, sun_b, obs_b)
+    return _weighted_intensity(obj, sun_b, obs_b, lit_seen_fraction(obj.shadow, sun_b, obs_b))
+
+
+def _weighted_intensity(obj: SpaceObject, sun_b, obs_b, frac):
+    """The facet sum with the shadowable facets weighted by ``frac`` (T, F_s)."""
+    n_t, n_pad = frac.shape[0], obj.model.n_facets - obj.free - frac.shape[1]
+    # Weight exactly 1 for facets that cannot be shadowed (and for padding).
+    ones = lambda n: jnp.ones((n_t, n), frac.dtype)  # noqa: E731
+    weights = jnp.concatenate([ones(obj.free), frac, ones(n_pad)], axis=1)
+    return facet_intensity(obj.model, sun_b, obs_b, weights=weights)
 
 
 def light_curve_intensity(
@@ -79,7 +119,7 @@ def light_curve_intensity(
         >>> batched = jax.vmap(light_curve_intensity, in_axes=(0, 0, None, None))
     """
     n_t = sun_dir.shape[0]
-    chunk = chunk or time_chunk(obj.model.n_facets)
+    chunk = chunk or time_chunk(obj.n_facets)
     chunk = min(chunk, max(n_t, 1))
     n_chunks = -(-n_t // chunk)
     pad = n_chunks * chunk - n_t
@@ -89,15 +129,25 @@ def light_curve_intensity(
         x = jnp.pad(x, ((0, pad),) + ((0, 0),) * (x.ndim - 1)) if pad else x
         return x.reshape(n_chunks, chunk, *x.shape[1:])
 
-    def one_chunk(args):
+    def to_body(args):
         t, s, v = args
         r = obj.attitude.rotation(t)  # (chunk, 3, 3) body → inertial
-        s_b = jnp.einsum("tji,tj->ti", r, s)
-        v_b = jnp.einsum("tji,tj->ti", r, v)
-        return facet_intensity(obj.model, s_b, v_b)
+        return jnp.einsum("tji,tj->ti", r, s), jnp.einsum("tji,tj->ti", r, v)
 
     args = jax.tree_util.tree_map(blocks, (times, sun_dir, obs_dir))
-    return jax.lax.map(one_chunk, args).reshape(-1)[:n_t]
+    if obj.shadow is None:
+        out = jax.lax.map(lambda a: facet_intensity(obj.model, *to_body(a)), args)
+        return out.reshape(-1)[:n_t]
+
+    # Two passes: in one loop XLA fuses the bit counting into the facet sum,
+    # which then runs 2-3× slower (measured); the fractions are small to keep.
+    def lit_seen(a):
+        s_b, v_b = to_body(a)
+        return s_b, v_b, lit_seen_fraction(obj.shadow, s_b, v_b)
+
+    per_chunk = jax.lax.map(lit_seen, args)
+    out = jax.lax.map(lambda a: _weighted_intensity(obj, *a), per_chunk)
+    return out.reshape(-1)[:n_t]
 
 
 #: XLA:CPU hands row reductions to YNNPACK, which splits the facet sum into
@@ -134,7 +184,8 @@ def stack_objects(objects: list[SpaceObject]) -> SpaceObject:
     """Stack objects along a new leading axis for ``jax.vmap``, padding facets.
 
     Objects with fewer facets get zero-coefficient facets (which contribute
-    nothing). All attitudes must be of the same type.
+    nothing). All attitudes must be of the same type; objects with shadows must
+    share one mesh (and so one shadow-table layout).
     """
     if not objects:
         raise JaxlcError("stack_objects: no objects given")
@@ -143,32 +194,48 @@ def stack_objects(objects: list[SpaceObject]) -> SpaceObject:
         raise JaxlcError(
             f"stack_objects: attitudes must share one type, got {sorted(k.__name__ for k in kinds)}"
         )
-    n_max = max(o.model.n_facets for o in objects)
+    shadowed = {o.shadow is not None for o in objects}
+    if len(shadowed) > 1:
+        raise JaxlcError(
+            "stack_objects: mix of objects with and without shadows; render them apart"
+        )
+    if True in shadowed:
+        layouts = {(o.shadow.bits.shape, o.shadow.groups, o.free) for o in objects}
+        if len(layouts) > 1:
+            raise JaxlcError(
+                "stack_objects: shadowed objects must share one mesh (one table layout)"
+            )
+    models = _pad_models([o.model for o in objects])
+    padded = [
+        SpaceObject(m, o.attitude, o.shadow, o.free) for m, o in zip(models, objects, strict=True)
+    ]
+    return jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *padded)
+
+
+def _pad_models(models: list[FacetModel]) -> list[FacetModel]:
+    """Models padded with inert facets to one facet count and one set of flags."""
+    n_max = max(m.n_facets for m in models)
     flags = {
-        f: any(getattr(o.model, f) for o in objects)
+        f: any(getattr(m, f) for m in models)
         for f in ("use_lambert", "use_as_diffuse", "use_specular", "anisotropic")
     }
-
-    def pad_model(m: FacetModel) -> FacetModel:
+    out = []
+    for m in models:
         extra = n_max - m.n_facets
         arrays = {}
         for field in dataclasses.fields(m):
-            x = getattr(m, field.name)
             if field.metadata.get("static"):
                 continue
+            x = getattr(m, field.name)
             if extra:
-                fill = 1.0 if field.name in ("nu", "nv") else 0.0
                 if x.ndim == 2:
-                    x = jnp.concatenate(
-                        [x, jnp.broadcast_to(jnp.asarray([0.0, 0.0, 1.0], x.dtype), (extra, 3))]
-                    )
+                    fill = jnp.broadcast_to(jnp.asarray([0.0, 0.0, 1.0], x.dtype), (extra, 3))
                 else:
-                    x = jnp.concatenate([x, jnp.full((extra,), fill, x.dtype)])
+                    fill = jnp.full((extra,), 1.0 if field.name in ("nu", "nv") else 0.0, x.dtype)
+                x = jnp.concatenate([x, fill])
             arrays[field.name] = x
-        return FacetModel(**arrays, **flags)
-
-    padded = [SpaceObject(pad_model(o.model), o.attitude) for o in objects]
-    return jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *padded)
+        out.append(FacetModel(**arrays, **flags))
+    return out
 
 
 # ---------------------------------------------------------------------------
@@ -180,8 +247,8 @@ class GeometryArrays:
     """Per-row float64 quantities derived from a geometry table.
 
     Attributes:
-        t_eval_s: (T,) attitude evaluation times (mid-exposure), seconds from
-            the first row.
+        t_start_s: (T,) exposure start times, seconds from the first row.
+        t_eval_s: (T,) mid-exposure times (where one sub-exposure samples).
         sun_dir, obs_dir: (T, 3) unit vectors object→Sun, object→observer.
         range_m: (T,) object-observer distance.
         irradiance_w_m2: (T,) solar irradiance at the object (1/r² and shadow ν).
@@ -191,6 +258,7 @@ class GeometryArrays:
         origin_utc: UTC time of the first row (the attitude's time origin).
     """
 
+    t_start_s: np.ndarray
     t_eval_s: np.ndarray
     sun_dir: np.ndarray
     obs_dir: np.ndarray
@@ -225,6 +293,7 @@ def geometry_arrays(table: pd.DataFrame, default_exposure_s: float = 1.0) -> Geo
     origin = pd.Timestamp(table["utc"].iloc[0]) if len(table) else None
     visible = table["visible"].to_numpy(bool) & (table["shadow_nu"].to_numpy() > 0)
     return GeometryArrays(
+        t_start_s=t_rel,
         t_eval_s=t_rel + 0.5 * exposure,
         sun_dir=s,
         obs_dir=v,
@@ -245,17 +314,49 @@ def bucket_size(n: int) -> int:
     return -(-n // step) * step
 
 
-def space_object(scene: Scene, origin_utc: pd.Timestamp | None, dtype=jnp.float32) -> SpaceObject:
-    """The traced object of a scene, its attitude referred to ``origin_utc``."""
+def space_object(
+    scene: Scene,
+    origin_utc: pd.Timestamp | None,
+    dtype=jnp.float32,
+    shadow: ShadowSettings | None = None,
+    progress=None,
+) -> SpaceObject:
+    """The traced object of a scene, its attitude referred to ``origin_utc``.
+
+    Args:
+        scene: the scene.
+        origin_utc: time origin of the attitude (the geometry table's first row).
+        dtype: float32 or float64.
+        shadow: shadow resolution, or None for no self-shadowing. A convex mesh
+            never gets shadow data.
+        progress: optional callable(done, total) while a shadow table is traced.
+    """
     facets = scene.facets
-    model = facet_model(facets, scene.materials_for(facets.part_names), dtype=dtype)
-    return SpaceObject(model=model, attitude=scene.attitude.build(origin_utc, dtype))
+    materials = scene.materials_for(facets.part_names)
+    attitude = scene.attitude.build(origin_utc, dtype)
+    data = None
+    if shadow is not None and not facets.convex:
+        data = shadow_data(
+            load_mesh(scene.mesh_path, scene.scale), facets, shadow, progress=progress
+        )
+    if data is None:
+        return SpaceObject(model=facet_model(facets, materials, dtype=dtype), attitude=attitude)
+    free = np.flatnonzero(~facets.can_shadow)
+    order = np.concatenate([free, data.facet_ids])
+    return SpaceObject(
+        model=facet_model(facets.subset(order), materials, dtype=dtype),
+        attitude=attitude,
+        shadow=shadow_table(data, dtype),
+        free=len(free),
+    )
 
 
 def render(
     scene: Scene | str | Path,
     geometry: pd.DataFrame | str | Path,
     precision: str = "float32",
+    options: RenderOptions | None = None,
+    progress=None,
 ) -> pd.DataFrame:
     """Render a light curve.
 
@@ -263,12 +364,15 @@ def render(
         scene: a :class:`~jaxlc.scene.Scene` or the path of a scene file.
         geometry: a geometry table (DataFrame) or its path (CSV/Parquet).
         precision: ``"float32"`` (default, fast) or ``"float64"``.
+        options: shadows and motion blur (default: the scene's ``[render]`` table).
+        progress: optional callable(done, total) while a shadow table is traced.
 
     Returns:
         Light-curve table: ``utc, t_s, mag, flux_w_m2, phase_angle_deg,
         range_m, exposure_s, visible``; invisible rows have NaN ``mag`` and
         ``flux_w_m2``; a visible row where no lit facet is seen has zero flux
-        and ``mag = inf``.
+        and ``mag = inf``. ``attrs["plan"]`` says what was done
+        (:meth:`~jaxlc.plan.RenderPlan.explain`).
 
     Example:
         >>> lc = jaxlc.render("experiments/scenes/s4_falcon9.toml", "geometry.csv")
@@ -284,11 +388,12 @@ def render(
         else validate_geometry(geometry)
     )
     geo = geometry_arrays(table, scene.exposure_s)
+    plan = make_plan(scene, geo, options or scene.render)
 
     intensity = np.full(len(table), np.nan)
     idx = np.flatnonzero(geo.visible)
     if len(idx):
-        intensity[idx] = _render_rows(scene, geo, idx, precision)
+        intensity[idx] = _render_rows(scene, geo, idx, precision, plan, progress)
 
     flux = photometry.flux_w_m2(intensity, geo.irradiance_w_m2, geo.range_m)
     out = pd.DataFrame(
@@ -309,22 +414,28 @@ def render(
             "scene": scene.source,
             "precision": precision,
             "generator": f"jaxlc {_version()}",
+            "plan": " | ".join(line.split(None, 1)[1] for line in plan.explain().splitlines()),
         }
     )
     return out
 
 
-def _render_rows(scene: Scene, geo: GeometryArrays, idx: np.ndarray, precision: str) -> np.ndarray:
+def _render_rows(
+    scene: Scene, geo: GeometryArrays, idx: np.ndarray, precision: str, plan: RenderPlan, progress
+) -> np.ndarray:
+    """Mean I/E over each visible row's sub-exposures (padded to a bucket size)."""
     dtype = PRECISIONS[precision]
     n = len(idx)
-    size = bucket_size(n)
-    take = np.concatenate([idx, np.full(size - n, idx[-1])])
+    take = np.concatenate([idx, np.full(bucket_size(n) - n, idx[-1])])
+    sub = plan.subsamples
+    t = subexposure_times(geo.t_start_s[take], geo.exposure_s[take], sub)
     with jax.enable_x64(precision == "float64"):
-        obj = space_object(scene, geo.origin_utc, dtype)
-        t = obj.attitude.times(geo.t_eval_s[take], **scene.attitude.exact_parameters())
-        s = jnp.asarray(geo.sun_dir[take], dtype=dtype)
-        v = jnp.asarray(geo.obs_dir[take], dtype=dtype)
-        result = np.asarray(_intensity_jit()(obj, t, s, v), dtype=np.float64)[:n]
+        obj = space_object(scene, geo.origin_utc, dtype, plan.shadow, progress)
+        times = obj.attitude.times(t, **scene.attitude.exact_parameters())
+        s = jnp.asarray(np.repeat(geo.sun_dir[take], sub, axis=0), dtype=dtype)
+        v = jnp.asarray(np.repeat(geo.obs_dir[take], sub, axis=0), dtype=dtype)
+        flat = np.asarray(_intensity_jit()(obj, times, s, v), dtype=np.float64)
+    result = flat.reshape(-1, sub).mean(axis=1)[:n]
     if not np.all(np.isfinite(result)):
         bad = int(np.count_nonzero(~np.isfinite(result)))
         raise JaxlcError(
@@ -356,6 +467,7 @@ def magnitudes(
 __all__ = [
     "GeometryArrays",
     "SpaceObject",
+    "body_intensity",
     "bucket_size",
     "geometry_arrays",
     "light_curve_intensity",

@@ -23,6 +23,15 @@ file, the key and the allowed range (ARCHITECTURE.md, "Scene file")::
     epoch_utc = "2019-07-07T12:00:00Z"        # optional, default: first table row
     [sensor]
     exposure_s = 1.0                          # used when the table has no exposure_s
+    [render]                                  # optional; these are the defaults
+    shadows = "auto"                          # | "off": self-shadowing where the mesh can
+    shadow_grid = 32                          # direction grid side (32² directions)
+    shadow_spacing = 0.01                     # sub-point spacing × object size
+    shadow_max_subpoints = 512                # per facet
+    shadow_interpolation = "bilinear"         # | "nearest"
+    blur = "auto"                             # | "off": sub-exposures as the motion needs
+    max_subsamples = 64                       # cap of the automatic choice
+    # subsamples = 16                         # or a fixed number per exposure
 """
 
 from __future__ import annotations
@@ -39,8 +48,10 @@ import pandas as pd
 
 from jaxlc import attitude as att
 from jaxlc.brdf import BRDFS, AbstractBRDF
-from jaxlc.errors import SceneError
+from jaxlc.errors import JaxlcError, SceneError
 from jaxlc.mesh import Facets, facets_from_mesh, load_mesh
+from jaxlc.plan import RenderOptions
+from jaxlc.shadow import ShadowSettings
 
 #: Where shipped meshes live (``meshes/`` beside the package in a checkout).
 SHIPPED_MESHES = Path(__file__).resolve().parent.parent / "meshes"
@@ -136,6 +147,10 @@ class AttitudeSpec:
     phase_deg: float = 0.0
     epoch_utc: pd.Timestamp | None = None
 
+    def rate_rad_s(self) -> float:
+        """Rotation rate of the attitude (rad/s): 2π/period for a spin, 0 when fixed."""
+        return 2.0 * math.pi / self.period_s if self.model == "spin" else 0.0
+
     def exact_parameters(self) -> dict:
         """Float64 parameters to pass to ``attitude.times`` (keeps float32 models exact)."""
         return {"period_s": self.period_s} if self.model == "spin" else {}
@@ -165,6 +180,7 @@ class Scene:
     scale: float = 1.0
     exposure_s: float = 1.0
     source: str = "<scene>"
+    render: RenderOptions = dataclasses.field(default_factory=RenderOptions)
 
     @functools.cached_property
     def facets(self) -> Facets:
@@ -239,6 +255,7 @@ def scene_from_dict(data: dict, source: str = "<dict>", base_dir: Path | None = 
     sensor = _Section(top.get("sensor", dict, default={}), f"{source}: [sensor]")
     exposure = sensor.get("exposure_s", float, default=1.0, check=_positive, what="seconds")
     sensor.finish()
+    render = _parse_render(top.get("render", dict, default={}), f"{source}: [render]")
     top.finish()
     return Scene(
         mesh_path=mesh_path,
@@ -247,6 +264,50 @@ def scene_from_dict(data: dict, source: str = "<dict>", base_dir: Path | None = 
         scale=scale,
         exposure_s=exposure,
         source=source,
+        render=render,
+    )
+
+
+def _choice(*allowed):
+    return lambda x: None if x in allowed else f"must be one of {', '.join(map(repr, allowed))}"
+
+
+def _whole(lo, hi):
+    return lambda x: (
+        None
+        if float(x).is_integer() and lo <= x <= hi
+        else f"must be a whole number in [{lo}, {hi}]"
+    )
+
+
+def _parse_render(table, where) -> RenderOptions:
+    """The optional ``[render]`` table: shadow and motion-blur choices."""
+    sec = _Section(table, where)
+    shadows = sec.get("shadows", str, default="auto", check=_choice("auto", "off"))
+    grid = sec.get(
+        "shadow_grid", float, default=32.0, check=_whole(4, 512), what="directions per side"
+    )
+    spacing = sec.get(
+        "shadow_spacing", float, default=0.01, check=_in_range(1e-4, 1.0), what="× object size"
+    )
+    max_sub = sec.get("shadow_max_subpoints", float, default=512.0, check=_whole(32, 4096))
+    interp = sec.get(
+        "shadow_interpolation", str, default="bilinear", check=_choice("bilinear", "nearest")
+    )
+    blur = sec.get("blur", str, default="auto", check=_choice("auto", "off"))
+    subsamples = sec.get("subsamples", float, default=None, check=_whole(1, 4096))
+    max_subsamples = sec.get("max_subsamples", float, default=64.0, check=_whole(1, 4096))
+    sec.finish()
+    try:
+        shadow = ShadowSettings(int(grid), float(spacing), int(max_sub), interp)
+    except JaxlcError as exc:
+        raise SceneError(f"{where}: {exc}") from None
+    return RenderOptions(
+        shadows=shadows,
+        shadow=shadow,
+        blur=blur,
+        subsamples=None if subsamples is None else int(subsamples),
+        max_subsamples=int(max_subsamples),
     )
 
 

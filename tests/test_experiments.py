@@ -26,12 +26,14 @@ def test_bench_render_quick(tmp_path):
     )
     assert r.returncode == 0, r.stderr
     df = jaxlc.read_table(out)
-    assert set(df["table"]) == {"A", "B", "C"}
+    assert set(df["table"]) == {"A", "B", "C", "D"}
     assert set(df[df.table == "A"]["scene"]) == {"S2", "S3", "S4", "S5", "S6"}
     assert (df["facet_samples_per_s"] > 0).all()
     # the naive and the fused kernels compute the same sum
     assert (df[df.table == "C"]["naive_vs_fused_max_rel_diff"] < 1e-5).all()
     assert df.attrs["backend"] and df.attrs["jax"]  # provenance travels with the CSV
+    costs = df[df.table == "D"]
+    assert set(costs["scene"]) == {"S4", "S5", "S6"} and (costs["cost_vs_plain"] > 0).all()
 
 
 def test_bench_geometry_quick(tmp_path):
@@ -53,3 +55,17 @@ def test_bench_geometry_quick(tmp_path):
     assert df["stage"].iloc[0].startswith("find_passes")
     assert (df["object_samples_per_s"] > 0).all()
     assert (df["position_error_vs_skyfield_m"] < 0.01).all()  # interpolated nutation: < 1 cm
+
+
+def test_pareto_quick(tmp_path):
+    out = tmp_path / "pareto.csv"
+    r = subprocess.run(
+        [sys.executable, str(REPO / "experiments" / "pareto.py"), "--quick", "--out", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=900,
+    )
+    assert r.returncode == 0, r.stderr
+    df = jaxlc.read_table(out)
+    assert set(df["knob"]) == {"facets", "shadows", "blur"}
+    assert out.with_suffix(".png").read_bytes()[:4] == b"\x89PNG"

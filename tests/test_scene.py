@@ -36,6 +36,12 @@ def test_shipped_scenes_parse(path):
     assert len(scene.materials_for(scene.facets.part_names)) == len(scene.facets.part_names)
 
 
+def test_render_table(write_scene):
+    text = BASE + '\n[render]\nshadows = "off"\nshadow_grid = 64\nsubsamples = 8\n'
+    r = jaxlc.load_scene(write_scene(text)).render
+    assert (r.shadows, r.shadow.grid, r.subsamples, r.blur) == ("off", 64, 8, "auto")
+
+
 def test_base_scene_defaults(write_scene):
     scene = jaxlc.load_scene(write_scene(BASE))
     brdf = scene.materials[0].brdf
@@ -88,7 +94,14 @@ BAD = [
     (BASE.replace('model = "spin"', 'model = "tumble"'), "not implemented yet"),
     (BASE + "\n[sensor]\nexposure_s = 0\n", r"exposure_s = 0\.0 must be > 0"),
     (BASE + "\n[sensor]\nexposure = 1\n", "unknown key 'exposure'"),
-    (BASE + "\n[render]\nfast = true\n", "unknown key 'render'"),
+    (BASE + "\n[rendering]\nfast = true\n", "unknown key 'rendering'; did you mean 'render'"),
+    (BASE + "\n[render]\nfast = true\n", r"\[render\]: unknown key 'fast'"),
+    (BASE + '\n[render]\nshadows = "on"\n', "shadows = 'on' must be one of 'auto', 'off'"),
+    (
+        BASE + "\n[render]\nshadow_grid = 3\n",
+        r"shadow_grid = 3\.0 must be a whole number in \[4, 512\]",
+    ),
+    (BASE + "\n[render]\nsubsamples = 2.5\n", "subsamples = 2.5 must be a whole number"),
     (BASE.replace("[object]", "[objects]"), "missing required key 'object'"),
     (BASE.replace("falcon9_upper_stage.obj", "nope.obj"), "mesh = .*nope.obj.* not found"),
     (

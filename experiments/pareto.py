@@ -1,0 +1,324 @@
+"""Run time against error for each knob of the renderer (part of ``make bench``).
+
+Knobs and their error references:
+
+* facet count — icosphere levels 1–5 against the analytic Lambert sphere law
+  (max |Δm| for α ≤ 150°);
+* shadows — direction grid side and sub-point spacing (and interpolation) on S4
+  and S6 against the exact polygon-clipping twin (median and 95th percentile
+  |Δm| over the 1,000 committed geometries of tests/data/shadow_reference_*.csv),
+  with the one-off precomputation time and the table's memory;
+* motion blur — sub-exposures per exposure on S5, S4 and S6 against 256
+  sub-exposures (max |Δm| over exposures within 5 mag of the pass's median).
+
+Cost is the time of one 1,800-sample light curve (compiled, median of repeats)
+and, for shadows and blur, its ratio to the plain instantaneous unshadowed
+render of the same scene timed in the same run. Writes
+``experiments/results/pareto.csv`` and ``pareto.png``.
+
+    python experiments/pareto.py [--quick]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pandas as pd
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE.parent))
+sys.path.insert(0, str(HERE))
+sys.path.insert(0, str(HERE.parent / "tests"))  # the analytic references live there, once
+
+from timing import timed  # noqa: E402
+
+import jaxlc  # noqa: E402
+from jaxlc.brdf import Lambert, facet_intensity, facet_model  # noqa: E402
+from jaxlc.plan import RenderOptions  # noqa: E402
+from jaxlc.render import (  # noqa: E402
+    body_intensity,
+    compiler_options,
+    geometry_arrays,
+    light_curve_intensity,
+    space_object,
+)
+from jaxlc.shadow import ShadowSettings, shadow_data  # noqa: E402
+from jaxlc.tables import validate_geometry, write_table  # noqa: E402
+
+SCENES = HERE / "scenes"
+DATA = HERE.parent / "tests" / "data"
+
+
+def pass_arrays(n=1800):
+    geo = jaxlc.synthetic_geometry(duration_s=float(n), phase_start_deg=10, phase_end_deg=140)
+    return geometry_arrays(validate_geometry(geo))
+
+
+def curve_time(obj, scene, geo, subsamples=1, repeats_s=0.5):
+    """Seconds for one light curve of the pass with n sub-exposures."""
+    from jaxlc.blur import subexposure_times
+
+    t = subexposure_times(geo.t_start_s, geo.exposure_s, subsamples)
+    times = obj.attitude.times(t, **scene.attitude.exact_parameters())
+    s = jnp.asarray(np.repeat(geo.sun_dir, subsamples, axis=0), jnp.float32)
+    v = jnp.asarray(np.repeat(geo.obs_dir, subsamples, axis=0), jnp.float32)
+    f = jax.jit(light_curve_intensity, compiler_options=compiler_options())
+    return timed(lambda: f(obj, times, s, v), repeats_s)[0]
+
+
+def lambert_sphere_error(facets) -> float:
+    """Max |Δm| of a unit Lambert icosphere against the analytic law, α = 0 … 150°."""
+    from helpers import lambert_sphere_intensity
+
+    alpha = np.radians(np.linspace(0, 150, 31))
+    s = np.tile([1.0, 0.0, 0.0], (len(alpha), 1))
+    v = np.stack([np.cos(alpha), np.sin(alpha), np.zeros_like(alpha)], 1)
+    with jax.enable_x64(True):
+        model = facet_model(facets, [Lambert(rd=0.5)], jnp.float64)
+        got = np.asarray(facet_intensity(model, jnp.asarray(s), jnp.asarray(v)))
+    return float(np.max(np.abs(2.5 * np.log10(lambert_sphere_intensity(alpha, 1.0, 0.5) / got))))
+
+
+def facet_count_rows(geo, repeats_s):
+    rows = []
+    s = jnp.asarray(geo.sun_dir, jnp.float32)
+    v = jnp.asarray(geo.obs_dir, jnp.float32)
+    f = jax.jit(facet_intensity, compiler_options=compiler_options())
+    for level in range(1, 6):
+        facets = jaxlc.facets_from_mesh(
+            jaxlc.load_mesh(HERE.parent / "meshes" / f"sphere_L{level}.obj")
+        )
+        model = facet_model(facets, [Lambert(rd=0.5)], jnp.float32)
+        sec = timed(lambda m=model: f(m, s, v), repeats_s)[0]
+        rows.append(
+            dict(
+                knob="facets",
+                scene="S2",
+                setting=f"L{level}: {facets.n_facets} facets",
+                value=facets.n_facets,
+                seconds=sec,
+                relative_cost=np.nan,
+                err_median_mag=np.nan,
+                err_p95_mag=np.nan,
+                err_max_mag=lambert_sphere_error(facets),
+            )
+        )
+    return rows
+
+
+def shadow_rows(geo, repeats_s, quick):
+    rows = []
+    grids = (8, 16) if quick else (8, 16, 32, 64)
+    spacings = (0.02,) if quick else (0.04, 0.02, 0.01, 0.005)
+    for sid, name in (("S6", "s6_boxwing"), ("S4", "s4_falcon9")):
+        scene = jaxlc.load_scene(SCENES / f"{name}.toml")
+        mesh = jaxlc.load_mesh(scene.mesh_path)
+        ref = jaxlc.read_table(DATA / f"shadow_reference_{name.split('_')[0]}.csv")
+        if quick:
+            ref = ref.iloc[:200]
+        s = jnp.asarray(ref[["sun_x", "sun_y", "sun_z"]].to_numpy(), jnp.float32)
+        v = jnp.asarray(ref[["obs_x", "obs_y", "obs_z"]].to_numpy(), jnp.float32)
+        exact = ref["i_exact_m2_sr"].to_numpy()
+        lit = exact > 0
+        plain = space_object(scene, None, jnp.float32, shadow=None)
+        base = curve_time(plain, scene, geo, 1, repeats_s)
+        err = np.abs(2.5 * np.log10(ref["i_unshadowed_m2_sr"].to_numpy()[lit] / exact[lit]))
+        rows.append(
+            dict(
+                knob="shadows",
+                scene=sid,
+                setting="off",
+                value=0,
+                seconds=base,
+                relative_cost=1.0,
+                err_median_mag=np.median(err),
+                err_p95_mag=np.percentile(err, 95),
+                err_max_mag=err.max(),
+                precompute_s=0.0,
+                table_mb=0.0,
+                subpoints=0,
+            )
+        )
+        settings = [ShadowSettings(grid=g, spacing=sp) for g in grids for sp in spacings]
+        settings.append(ShadowSettings(grid=32, spacing=0.01, interpolation="nearest"))
+        for st in settings:
+            data = shadow_data(mesh, scene.facets, st)
+            pre = data.seconds if not data.from_cache else float("nan")  # nan: cached earlier
+            obj = space_object(scene, None, jnp.float32, shadow=st)
+            approx = np.asarray(jax.jit(body_intensity)(obj, s, v), np.float64)
+            err = np.abs(2.5 * np.log10(np.maximum(approx[lit], 1e-300) / exact[lit]))
+            sec = curve_time(obj, scene, geo, 1, repeats_s)
+            rows.append(
+                dict(
+                    knob="shadows",
+                    scene=sid,
+                    setting=f"grid {st.grid}, spacing {st.spacing:g}"
+                    + (", nearest" if st.interpolation == "nearest" else ""),
+                    value=st.grid,
+                    seconds=sec,
+                    relative_cost=sec / base,
+                    err_median_mag=np.median(err),
+                    err_p95_mag=np.percentile(err, 95),
+                    err_max_mag=err.max(),
+                    precompute_s=pre,
+                    table_mb=data.nbytes / 1e6,
+                    subpoints=data.subpoints,
+                )
+            )
+            print(
+                f"  {sid} {rows[-1]['setting']}: p95 {rows[-1]['err_p95_mag']:.4f} mag, "
+                f"cost ×{sec / base:.2f}, precompute {pre:.1f} s",
+                flush=True,
+            )
+    return rows
+
+
+def blur_rows(repeats_s, quick):
+    rows = []
+    duration = 200.0 if quick else 400.0
+    geo_table = jaxlc.synthetic_geometry(
+        duration_s=duration, phase_start_deg=10, phase_end_deg=140, exposure_s=1.0
+    )
+    geo = geometry_arrays(validate_geometry(geo_table))
+    for sid, name in (("S5", "s5_cubesat"), ("S4", "s4_falcon9"), ("S6", "s6_boxwing")):
+        scene = jaxlc.load_scene(SCENES / f"{name}.toml")
+        dense = jaxlc.render(scene, geo_table, options=RenderOptions(subsamples=256))
+        keep = np.isfinite(dense["mag"]) & (dense["mag"] < np.nanmedian(dense["mag"]) + 5)
+        auto_plan = jaxlc.render(scene, geo_table).attrs["plan"]
+        n_auto = int(auto_plan.split("|")[3].split()[0])
+        shadow = scene.render.shadow if not scene.facets.convex else None
+        obj = space_object(scene, None, jnp.float32, shadow=shadow)
+        base = curve_time(obj, scene, geo, 1, repeats_s)
+        for n in sorted({1, 2, 4, 8, 16, 32, 64, n_auto}):
+            lc = jaxlc.render(scene, geo_table, options=RenderOptions(subsamples=n))
+            dm = np.abs(lc["mag"][keep] - dense["mag"][keep]).to_numpy()
+            sec = curve_time(obj, scene, geo, n, repeats_s)
+            rows.append(
+                dict(
+                    knob="blur",
+                    scene=sid,
+                    setting=f"{n} sub-exposures" + (" (auto)" if n == n_auto else ""),
+                    value=n,
+                    seconds=sec,
+                    relative_cost=sec / base,
+                    err_median_mag=np.median(dm),
+                    err_p95_mag=np.percentile(dm, 95),
+                    err_max_mag=dm.max(),
+                )
+            )
+    return rows
+
+
+def plot(df: pd.DataFrame, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from jaxlc.files import atomic_output
+
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.6))
+    panels = [
+        (
+            "facets",
+            "seconds",
+            "err_max_mag",
+            "facet count (S2, Lambert sphere)",
+            "time per light curve (s)",
+            "max |Δm| vs analytic",
+        ),
+        (
+            "shadows",
+            "relative_cost",
+            "err_p95_mag",
+            "shadow resolution (S4, S6)",
+            "cost / unshadowed",
+            "95th pct |Δm| vs exact twin",
+        ),
+        (
+            "blur",
+            "relative_cost",
+            "err_max_mag",
+            "motion blur (S5, S4, S6)",
+            "cost / one sub-exposure",
+            "max |Δm| vs 256 sub-exposures",
+        ),
+    ]
+    for ax, (knob, x, y, title, xl, yl) in zip(axes, panels, strict=True):
+        sub = df[df.knob == knob]
+        for scene, g in sub.groupby("scene"):
+            ax.plot(g[x], np.maximum(g[y], 1e-5), "o", label=scene)
+            for r in g.itertuples():
+                label = (
+                    r.setting.replace("grid ", "g")
+                    .replace(", spacing ", "/s")
+                    .replace(" sub-exposures", "")
+                )
+                ax.annotate(label, (getattr(r, x), max(getattr(r, y), 1e-5)), fontsize=6, alpha=0.7)
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.axhline(0.01, color="0.6", lw=0.8, ls="--")
+        if knob == "shadows":
+            ax.axhline(0.05, color="0.6", lw=0.8, ls=":")
+        ax.set_title(title)
+        ax.set_xlabel(xl)
+        ax.set_ylabel(yl)
+        ax.grid(alpha=0.3, which="both")
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    with atomic_output(path) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
+    plt.close(fig)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument(
+        "--quick", action="store_true", help="fewer settings and samples (smoke test)"
+    )
+    parser.add_argument("--out", type=Path, default=HERE / "results" / "pareto.csv")
+    args = parser.parse_args(argv)
+    repeats_s = 0.1 if args.quick else 0.5
+    geo = pass_arrays(300 if args.quick else 1800)
+    rows = (
+        facet_count_rows(geo, repeats_s)
+        + shadow_rows(geo, repeats_s, args.quick)
+        + blur_rows(repeats_s, args.quick)
+    )
+    df = pd.DataFrame(rows)
+    df.attrs.update(
+        {
+            "generator": "experiments/pareto.py",
+            "jaxlc": jaxlc.__version__,
+            "quick": str(args.quick),
+            "date_utc": pd.Timestamp.now(tz="UTC").strftime("%Y-%m-%dT%H:%M:%SZ"),
+        }
+    )
+    write_table(df, args.out)
+    plot(df, args.out.with_suffix(".png"))
+    with pd.option_context("display.width", 200, "display.max_columns", 20):
+        print(
+            df[
+                [
+                    "knob",
+                    "scene",
+                    "setting",
+                    "seconds",
+                    "relative_cost",
+                    "err_median_mag",
+                    "err_p95_mag",
+                    "err_max_mag",
+                ]
+            ].to_string(index=False)
+        )
+    print(f"wrote {args.out} and {args.out.with_suffix('.png')}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
