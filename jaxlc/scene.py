@@ -26,7 +26,7 @@ file, the key and the allowed range (ARCHITECTURE.md, "Scene file")::
     [render]                                  # optional; these are the defaults
     shadows = "auto"                          # | "off": self-shadowing where the mesh can
     shadow_grid = 32                          # direction grid side (32² directions)
-    shadow_spacing = 0.01                     # sub-point spacing × object size
+    shadow_spacing = 0.005                    # sub-point spacing × object size
     shadow_max_subpoints = 512                # per facet
     shadow_interpolation = "bilinear"         # | "nearest"
     blur = "auto"                             # | "off": sub-exposures as the motion needs
@@ -288,7 +288,7 @@ def _parse_render(table, where) -> RenderOptions:
         "shadow_grid", float, default=32.0, check=_whole(4, 512), what="directions per side"
     )
     spacing = sec.get(
-        "shadow_spacing", float, default=0.01, check=_in_range(1e-4, 1.0), what="× object size"
+        "shadow_spacing", float, default=0.005, check=_in_range(1e-4, 1.0), what="× object size"
     )
     max_sub = sec.get("shadow_max_subpoints", float, default=512.0, check=_whole(32, 4096))
     interp = sec.get(

@@ -60,7 +60,7 @@ class ShadowSettings:
     """
 
     grid: int = 32
-    spacing: float = 0.01
+    spacing: float = 0.005
     max_subpoints: int = 512
     interpolation: str = "bilinear"
 
