@@ -7,13 +7,23 @@ DEMO   := build/demo
 
 .PHONY: setup demo test bench lint format meshes clean
 
-## setup: create .venv with jaxlc, its test tools and the Dask extra (idempotent)
-setup: $(STAMP)
+BLENDER_VENV  := .venv-blender
+BLENDER_STAMP := $(BLENDER_VENV)/.installed
+
+## setup: create .venv (jaxlc, test tools, Dask) and .venv-blender (bpy 5.0, numpy<2); idempotent
+setup: $(STAMP) $(BLENDER_STAMP)
 
 $(STAMP): pyproject.toml requirements/constraints.txt
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --disable-pip-version-check \
 		-c requirements/constraints.txt -e '.[test,dask]'
+	@touch $@
+
+# bpy cannot share .venv: it pins numpy<2, jax needs numpy>=2 (ARCHITECTURE.md).
+$(BLENDER_STAMP): requirements/blender.txt
+	@test -x $(BLENDER_VENV)/bin/python || $(PYTHON) -m venv $(BLENDER_VENV)
+	$(BLENDER_VENV)/bin/python -m pip install --quiet --disable-pip-version-check \
+		-r requirements/blender.txt
 	@touch $@
 
 ## demo: a tumbling Falcon 9 second stage over a real 20-minute pass seen from Mt Stromlo

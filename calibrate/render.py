@@ -1,0 +1,251 @@
+"""Light curves rendered by Blender/Cycles, in the same table as ``jaxlc.render``.
+
+Two ways from pixel sums to magnitudes:
+
+``camera = "ortho"`` (default)
+    An orthographic camera looks along −v at the object; each pixel is a
+    parallel beam, so the radiant intensity is I = B (ortho_scale/N)² W/sr for
+    the pixel sum B of an N × N image of radiance, and F = I/d². No fitted
+    constant.
+``camera = "seed"``
+    The seed paper's method: positions divided by ``scale`` (1000), a
+    perspective camera at the (scaled) sensor, and a 1 × 1 m white Lambert plate
+    at 10 km rendered with the same camera as the reference: its facet-model
+    magnitude m_ff and its Blender instrumental magnitude I_mb = −2.5 log10(B_ref Ω_ref / t)
+    calibrate every frame, m = m_ff − I_mb + I_m + 5 log10(scale) with
+    I_m = −2.5 log10(B Ω / t) and Ω the pixel solid angle of each (zoomed) frame.
+    The seed's Eq. (7) writes the same transfer with a distance factor because
+    its renders kept the camera at a fixed distance; here the camera sits at the
+    sensor, so the pixel sum already falls off as 1/d², and the scale term
+    undoes the shortened distances.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from calibrate.job import BlenderOptions, material_spec, matrix_to_quaternion, write_job
+from calibrate.runner import default_timeout_s, run_worker
+from jaxlc import photometry
+from jaxlc.mesh import load_mesh
+from jaxlc.scene import Scene, load_scene
+from jaxlc.tables import read_geometry, validate_geometry
+
+#: The seed's calibration plate: 1 × 1 m, white Lambert, both sides.
+PLATE_VERTICES = np.array([[-0.5, -0.5, 0.0], [0.5, -0.5, 0.0], [0.5, 0.5, 0.0], [-0.5, 0.5, 0.0]])
+PLATE_FACES = np.array([[0, 1, 2], [0, 2, 3], [0, 2, 1], [0, 3, 2]])
+
+
+@dataclasses.dataclass(frozen=True)
+class Calibration:
+    """The seed camera's reference: facet-model and Blender magnitudes of the plate."""
+
+    m_ff: float
+    i_mb: float
+    pixel_sum: float
+
+    @property
+    def constant(self) -> float:
+        """m_ff − I_mb: the zero point added to every instrumental magnitude."""
+        return self.m_ff - self.i_mb
+
+
+def _parts(scene: Scene):
+    mesh = load_mesh(scene.mesh_path, scene.scale)
+    parts = []
+    for k, name in enumerate(mesh.part_names):
+        faces = mesh.faces[mesh.face_part == k]
+        used, inverse = np.unique(faces, return_inverse=True)
+        parts.append((name, mesh.vertices_m[used], inverse.reshape(faces.shape)))
+    radius = float(np.max(np.linalg.norm(mesh.vertices_m, axis=1)))
+    return mesh, parts, radius
+
+
+def _rotations(scene: Scene, geo, idx: np.ndarray, keyframes: int) -> np.ndarray:
+    """(n, K, 4) body→inertial quaternions: mid-exposure (K = 1) or spanning it."""
+    import jax
+    import jax.numpy as jnp
+
+    if keyframes == 1:
+        t = geo.t_eval_s[idx][:, None]
+    else:
+        frac = np.linspace(0.0, 1.0, keyframes)
+        t = geo.t_start_s[idx][:, None] + geo.exposure_s[idx][:, None] * frac[None, :]
+    with jax.enable_x64(True):
+        attitude = scene.attitude.build(geo.origin_utc, jnp.float64)
+        times = attitude.times(t.ravel(), **scene.attitude.exact_parameters())
+        r = np.asarray(attitude.rotation(times))
+    q = matrix_to_quaternion(r).reshape(len(idx), keyframes, 4)
+    # q and −q are one rotation; keep each exposure's keyframes on one side so that
+    # Blender's interpolation between them is the short way round.
+    for k in range(1, keyframes):
+        flip = np.sum(q[:, k] * q[:, k - 1], axis=1) < 0
+        q[flip, k] *= -1.0
+    return q
+
+
+def blender_render(
+    scene: Scene | str | Path,
+    geometry: pd.DataFrame | str | Path,
+    options: BlenderOptions | None = None,
+    progress=None,
+    work_dir: Path | None = None,
+) -> pd.DataFrame:
+    """Render a light curve with Cycles.
+
+    Args:
+        scene: a scene or its file (same file as ``jaxlc render``).
+        geometry: a geometry table or its file.
+        options: camera, image size, samples, bounces, motion blur, time-out.
+        progress: optional callable(done_frames, total_frames).
+        work_dir: folder for the job (default: a temporary one, removed).
+
+    Returns:
+        The light-curve table of ``jaxlc.render`` plus ``blender_seconds`` per
+        row; ``attrs`` record the renderer and its settings.
+    """
+    from jaxlc.plan import make_plan
+    from jaxlc.render import geometry_arrays
+
+    options = options or BlenderOptions()
+    if not isinstance(scene, Scene):
+        scene = load_scene(scene)
+    table = (
+        read_geometry(geometry)
+        if not isinstance(geometry, pd.DataFrame)
+        else validate_geometry(geometry)
+    )
+    geo = geometry_arrays(table, scene.exposure_s)
+    idx = np.flatnonzero(geo.visible)
+    keyframes = 1
+    if options.motion_blur:
+        keyframes = options.keyframes or max(2, make_plan(scene, geo).subsamples)
+    _, parts, radius = _parts(scene)
+    materials = [
+        material_spec(name, brdf)
+        for name, brdf in zip(
+            [p[0] for p in parts], scene.materials_for([p[0] for p in parts]), strict=True
+        )
+    ]
+    settings = options.job_settings() | {
+        "motion_steps": max(1, math.ceil(math.log2(max(keyframes, 1))) + 2)
+    }
+
+    pixel_sum = np.full(len(table), np.nan)
+    seconds = np.full(len(table), np.nan)
+    intensity = np.full(len(table), np.nan)  # I/E, m² sr⁻¹
+    calibration = None
+    with tempfile.TemporaryDirectory(prefix="jaxlc-blender-") as tmp:
+        root = Path(work_dir) if work_dir is not None else Path(tmp)
+        if len(idx):
+            rng = geo.range_m[idx]
+            frames = {
+                "quaternions": _rotations(scene, geo, idx, keyframes),
+                "sun_dir": geo.sun_dir[idx],
+                "obs_dir": geo.obs_dir[idx],
+                "irradiance_w_m2": geo.irradiance_w_m2[idx],
+            }
+            n_px = options.resolution
+            if options.camera == "ortho":
+                ortho = 2.2 * radius
+                camera = {"mode": "ortho", "ortho_scale": ortho, "clip_end": 10.0 * radius + 10.0}
+                frames["camera_distance"] = np.full(len(idx), 2.0 * radius + 1.0)
+            else:
+                d_blender = rng / options.scale
+                fov = 2.0 * np.arctan(1.15 * radius / d_blender)
+                camera = {
+                    "mode": "perspective",
+                    "clip_start": 1e-3,
+                    "clip_end": 10.0 * float(d_blender.max()),
+                }
+                frames["camera_distance"] = d_blender
+                frames["fov_rad"] = fov
+            extra = {"keep_images": options.keep_images is not None}
+            if options.keep_images is not None:
+                extra["image_dir"] = str(Path(options.keep_images).resolve())
+            job = write_job(root / "object", parts, materials, camera, settings, frames, extra)
+            timeout = options.timeout_s or default_timeout_s(
+                len(idx), n_px, options.samples, keyframes
+            )
+            result = run_worker(job, timeout, progress)
+            pixel_sum[idx] = result["pixel_sum"]
+            seconds[idx] = result["seconds"]
+            e = geo.irradiance_w_m2[idx]
+            if options.camera == "ortho":
+                intensity[idx] = result["pixel_sum"] * (ortho / n_px) ** 2 / e
+            else:
+                calibration = seed_calibration(options, root / "reference")
+                omega = (2.0 * np.tan(fov / 2.0) / n_px) ** 2
+                instrumental = -2.5 * np.log10(result["pixel_sum"] * omega)
+                mag = calibration.constant + instrumental + 5.0 * math.log10(options.scale)
+                flux = photometry.C_SUN_VIS_W_M2 * 10 ** (-0.4 * (mag - photometry.M_SUN_V))
+                intensity[idx] = flux * rng**2 / e
+
+    flux = photometry.flux_w_m2(intensity, geo.irradiance_w_m2, geo.range_m)
+    out = pd.DataFrame(
+        {
+            "utc": table["utc"],
+            "t_s": table["t_s"],
+            "mag": photometry.magnitude(flux),
+            "flux_w_m2": flux,
+            "phase_angle_deg": geo.phase_angle_deg,
+            "range_m": geo.range_m,
+            "exposure_s": geo.exposure_s,
+            "visible": geo.visible,
+            "blender_pixel_sum": pixel_sum,
+            "blender_seconds": seconds,
+        }
+    )
+    out.attrs.update(
+        {
+            "frame": table.attrs.get("frame", "unknown"),
+            "scene": scene.source,
+            "renderer": "blender cycles (bpy)",
+            "camera": options.camera,
+            "resolution": str(options.resolution),
+            "samples": str(options.samples),
+            "bounces": str(options.bounces),
+            "motion_blur": f"{options.motion_blur} ({keyframes} keyframes)",
+        }
+    )
+    if calibration is not None:
+        out.attrs["seed_calibration"] = f"m_ff {calibration.m_ff:.6f}, I_mb {calibration.i_mb:.6f}"
+    return out
+
+
+def seed_calibration(options: BlenderOptions, job_dir: Path) -> Calibration:
+    """Render the seed's reference plate and compare it with the facet model.
+
+    A 1 × 1 m white Lambert plate at ``reference_m`` faces the camera with the
+    Sun behind the camera (phase angle 0) at 1 AU: the facet model gives
+    m_ff = −26.74 − 2.5 log10((1/π) A / d_r²), Blender the pixel sum B_ref
+    with the same camera, zoomed to the plate.
+    """
+    d_r = options.reference_m
+    fov = 2.0 * math.atan(1.15 * math.sqrt(0.5) / d_r)
+    frames = {
+        "quaternions": np.array([[[1.0, 0.0, 0.0, 0.0]]]),
+        "sun_dir": np.array([[0.0, 0.0, 1.0]]),
+        "obs_dir": np.array([[0.0, 0.0, 1.0]]),
+        "irradiance_w_m2": np.array([photometry.C_SUN_VIS_W_M2]),
+        "camera_distance": np.array([d_r]),
+        "fov_rad": np.array([fov]),
+    }
+    settings = options.job_settings() | {"motion_blur": False, "motion_steps": 1}
+    camera = {"mode": "perspective", "clip_start": 1e-3, "clip_end": 10.0 * d_r}
+    material = [{"part": "plate", "diffuse": 1.0, "glossy": 0.0}]
+    job = write_job(
+        job_dir, [("plate", PLATE_VERTICES, PLATE_FACES)], material, camera, settings, frames
+    )
+    result = run_worker(job, default_timeout_s(1, options.resolution, options.samples))
+    omega = (2.0 * math.tan(fov / 2.0) / options.resolution) ** 2
+    b_ref = float(result["pixel_sum"][0])
+    flux_ff = photometry.C_SUN_VIS_W_M2 * (1.0 / math.pi) * 1.0 / d_r**2
+    m_ff = float(photometry.magnitude(flux_ff))
+    return Calibration(m_ff=m_ff, i_mb=-2.5 * math.log10(b_ref * omega), pixel_sum=b_ref)

@@ -1,0 +1,254 @@
+"""The Blender/Cycles reference (calibrate): calibration both ways, analytic sphere,
+shadows and blur against the JAX model, worker failure paths. Small images."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+from helpers import SCENES, lambert_sphere_intensity, rotation_matrix_from_quaternion
+
+import jaxlc
+from calibrate.environment import find_blender_environment
+from calibrate.job import BlenderOptions, anisotropy, matrix_to_quaternion, roughness, write_job
+from calibrate.render import blender_render
+from calibrate.runner import BlenderError, run_worker
+from jaxlc.brdf import ASGlossy
+from jaxlc.plan import RenderOptions
+from jaxlc.scene import MaterialSpec
+
+needs_blender = pytest.mark.skipif(
+    not find_blender_environment().available,
+    reason=f"Blender environment: {find_blender_environment().describe()}",
+)
+SMALL = dict(resolution=64, samples=16)
+PLAIN = RenderOptions(shadows="off", blur="off")
+
+
+def _geometry(n=6, **kw):
+    args = dict(
+        duration_s=60.0 * n,
+        step_s=60.0,
+        phase_start_deg=10,
+        phase_end_deg=120,
+        sun_dec_deg=35,
+        tilt_deg=50,
+        range_start_m=5e5,
+        range_end_m=2e6,
+    )
+    args.update(kw)
+    return jaxlc.synthetic_geometry(**args)
+
+
+# ---------------------------------------------------------------------------
+# Pure-Python pieces (no Blender)
+
+
+def test_roughness_and_anisotropy_mapping():
+    assert roughness(0.0) == pytest.approx(1.0)
+    n = 300.0
+    r = roughness(n)
+    assert 2.0 / r**4 - 2.0 == pytest.approx(n)  # α = r², n = 2/α² − 2 (PHYSICS.md §5)
+    r_iso, a_iso = anisotropy(n, n)
+    assert a_iso == pytest.approx(0.0, abs=1e-12) and r_iso == pytest.approx(r)
+    rr, a = anisotropy(30.0, 90.0)
+    aspect = math.sqrt(1 - 0.9 * a)
+    ax, ay = rr**2 / aspect, rr**2 * aspect  # Cycles: along its tangent (w) and across (u)
+    assert 2 / ax**2 - 2 == pytest.approx(90.0) and 2 / ay**2 - 2 == pytest.approx(30.0)
+    # Cycles' |anisotropy| ≤ 0.99 allows exponent ratios up to ~3.6: beyond, it is clipped
+    assert anisotropy(30.0, 120.0)[1] == pytest.approx(-0.99)
+
+
+def test_matrix_to_quaternion_round_trip():
+    rng = np.random.default_rng(0)
+    q = rng.normal(size=(200, 4))
+    r = np.stack([rotation_matrix_from_quaternion(x) for x in q])
+    back = matrix_to_quaternion(r)
+    np.testing.assert_allclose(
+        np.stack([rotation_matrix_from_quaternion(x) for x in back]), r, atol=1e-12
+    )
+
+
+# ---------------------------------------------------------------------------
+# Calibration of pixel sums: the plate both ways
+
+
+@needs_blender
+def test_plate_calibration_both_ways_agree_with_facet_model():
+    """(a) the seed's perspective camera with its 10 km plate reference and (b) the
+    orthographic far-field camera agree with each other and with the facet model
+    to ≤ 0.01 mag, at 500–2,000 km and phase angles 10–120°."""
+    scene = jaxlc.load_scene(SCENES / "s1_plate.toml")
+    geo = _geometry()
+    ff = jaxlc.render(scene, geo, precision="float64", options=PLAIN)
+    ortho = blender_render(scene, geo, BlenderOptions(camera="ortho", **SMALL))
+    seed = blender_render(scene, geo, BlenderOptions(camera="seed", **SMALL))
+    ok = np.isfinite(ff["mag"])
+    assert ok.sum() >= 5
+    assert np.abs(ortho["mag"] - ff["mag"])[ok].max() <= 0.01
+    assert np.abs(seed["mag"] - ff["mag"])[ok].max() <= 0.01
+    assert np.abs(seed["mag"] - ortho["mag"])[ok].max() <= 0.01
+    assert "m_ff -5.497" in seed.attrs["seed_calibration"]  # the 1 m² plate at 10 km
+    assert list(ortho.columns[:8]) == list(jaxlc.tables.LIGHTCURVE_COLUMNS)
+
+
+@needs_blender
+def test_lambert_sphere_against_analytic_phase_law():
+    """Cycles renders the 5,120-facet icosphere of S2 like the analytic Lambert sphere
+    (the flat-faceted mesh itself is ≤ 0.006 mag off the law)."""
+    scene = jaxlc.load_scene(SCENES / "s2_sphere.toml")
+    geo = _geometry(n=8, phase_start_deg=0, phase_end_deg=150, sun_dec_deg=0, tilt_deg=0)
+    lc = blender_render(scene, geo, BlenderOptions(resolution=96, samples=16))
+    table = jaxlc.tables.validate_geometry(geo)
+    from jaxlc.render import geometry_arrays
+
+    g = geometry_arrays(table)
+    law = lambert_sphere_intensity(np.radians(g.phase_angle_deg), 1.0, 0.5)
+    analytic = jaxlc.photometry.magnitude(
+        jaxlc.photometry.flux_w_m2(law, g.irradiance_w_m2, g.range_m)
+    )
+    assert np.abs(lc["mag"] - analytic).max() <= 0.015
+
+
+# ---------------------------------------------------------------------------
+# Against the JAX model
+
+
+@needs_blender
+def test_shadowed_box_wing_against_jax_model():
+    from calibrate.crosscheck import same_material
+
+    scene = same_material(jaxlc.load_scene(SCENES / "s6_boxwing.toml"))
+    geo = _geometry(n=6)
+    jax_lc = jaxlc.render(scene, geo, options=RenderOptions(blur="off"))
+    cyc = blender_render(scene, geo, BlenderOptions(**SMALL))
+    ok = np.isfinite(jax_lc["mag"]) & np.isfinite(cyc["mag"])
+    rms = float(np.sqrt(np.mean((cyc["mag"] - jax_lc["mag"])[ok] ** 2)))
+    assert rms <= 0.05, rms
+    unshadowed = jaxlc.render(scene, geo, options=PLAIN)
+    assert np.abs(unshadowed["mag"] - cyc["mag"])[ok].max() > 0.05  # Cycles does see the shadows
+
+
+@needs_blender
+def test_motion_blur_keyframes_follow_the_spin():
+    """The CubeSat (as-glossy) spinning in 10 s over 1 s exposures: Cycles' motion blur
+    of the keyframed spin against the JAX sub-exposures; sharp renders agree too."""
+    scene = jaxlc.load_scene(SCENES / "s5_cubesat.toml")
+    scene = dataclasses.replace(
+        scene, materials=(MaterialSpec("*", ASGlossy(0.15, 0.4, 1000.0, 1000.0)),)
+    )
+    geo = _geometry(
+        n=5, duration_s=20, step_s=4, phase_start_deg=30, phase_end_deg=60, exposure_s=1.0
+    )
+    sharp_jax = jaxlc.render(scene, geo, precision="float64", options=RenderOptions(blur="off"))
+    sharp = blender_render(scene, geo, BlenderOptions(**SMALL))
+    assert np.abs(sharp["mag"] - sharp_jax["mag"]).max() <= 0.01
+    blur_jax = jaxlc.render(scene, geo, precision="float64")
+    blur = blender_render(scene, geo, BlenderOptions(motion_blur=True, **SMALL))
+    assert np.abs(blur["mag"] - blur_jax["mag"]).max() <= 0.02
+    assert np.abs(blur_jax["mag"] - sharp_jax["mag"]).max() > 0.02  # the blur matters here
+
+
+# ---------------------------------------------------------------------------
+# Failure paths
+
+
+def _tiny_job(tmp_path, **extra):
+    frames = {
+        "quaternions": np.array([[[1.0, 0, 0, 0]]]),
+        "sun_dir": np.array([[0, 0, 1.0]]),
+        "obs_dir": np.array([[0, 0, 1.0]]),
+        "irradiance_w_m2": np.array([1062.0]),
+        "camera_distance": np.array([3.0]),
+    }
+    parts = [
+        (
+            "plate",
+            np.array([[-0.5, -0.5, 0], [0.5, -0.5, 0], [0.5, 0.5, 0.0]]),
+            np.array([[0, 1, 2]]),
+        )
+    ]
+    settings = BlenderOptions(resolution=16, samples=1).job_settings() | {"motion_steps": 1}
+    return write_job(
+        tmp_path / "job",
+        parts,
+        [{"part": "plate", "diffuse": 1.0, "glossy": 0.0}],
+        {"mode": "ortho", "ortho_scale": 2.0},
+        settings,
+        frames,
+        extra,
+    )
+
+
+def test_missing_environment_says_make_setup(tmp_path, monkeypatch):
+    monkeypatch.setenv("JAXLC_BLENDER_VENV", str(tmp_path / "nowhere"))
+    with pytest.raises(BlenderError, match="run `make setup`"):
+        run_worker(_tiny_job(tmp_path), timeout_s=30)
+
+
+@needs_blender
+def test_worker_crash_reports_stderr(tmp_path):
+    with pytest.raises(BlenderError, match=r"exit status 3.*crash requested by the job"):
+        run_worker(_tiny_job(tmp_path, crash_for_test=True), timeout_s=60)
+
+
+@needs_blender
+def test_worker_hang_times_out(tmp_path):
+    with pytest.raises(BlenderError, match="did not finish within 4 s"):
+        run_worker(_tiny_job(tmp_path, hang_for_test=True), timeout_s=4)
+
+
+@needs_blender
+def test_worker_bad_job(tmp_path):
+    job = _tiny_job(tmp_path)
+    (job / "job.json").write_text("{not json")
+    with pytest.raises(BlenderError, match="cannot read the job"):
+        run_worker(job, timeout_s=60)
+
+
+@needs_blender
+def test_keep_images(tmp_path):
+    keep = tmp_path / "images"
+    lc = blender_render(
+        SCENES / "s1_plate.toml", _geometry(n=2), BlenderOptions(keep_images=keep, **SMALL)
+    )
+    assert len(list(keep.glob("*.exr"))) == int(lc["visible"].sum()) > 0
+
+
+@needs_blender
+def test_cli_calibrate_render(tmp_path):
+    from test_cli import run_cli
+
+    geo = tmp_path / "g.csv"
+    jaxlc.write_table(_geometry(n=3), geo)
+    out = tmp_path / "lc.csv"
+    r = run_cli(
+        "calibrate",
+        "render",
+        SCENES / "s1_plate.toml",
+        geo,
+        "-o",
+        out,
+        "--resolution",
+        "32",
+        "--samples",
+        "8",
+        cwd=tmp_path,
+    )
+    assert r.returncode == 0, r.stderr
+    lc = jaxlc.read_lightcurve(out)
+    assert lc.attrs["renderer"].startswith("blender") and len(lc) == 3
+    bad = run_cli(
+        "calibrate",
+        "render",
+        SCENES / "s1_plate.toml",
+        geo,
+        "-o",
+        out,
+        "--camera",
+        "fisheye",
+        cwd=tmp_path,
+    )
+    assert bad.returncode == 1 and "camera = 'fisheye'" in bad.stderr
