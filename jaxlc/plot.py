@@ -56,3 +56,134 @@ def _shade_invisible(ax, t, visible):
     edges = np.flatnonzero(np.diff(np.r_[0, (~visible).astype(int), 0]))
     for start, stop in zip(edges[::2], edges[1::2], strict=True):
         ax.axvspan(t[start], t[stop - 1], color="0.85", lw=0, zorder=0)
+
+
+def plot_period(result, t_s, mag, path: str | Path, title: str | None = None) -> Path:
+    """Periodogram (power against period) above the curve folded at the decided period.
+
+    Args:
+        result: a :class:`jaxlc.period.PeriodResult`.
+        t_s, mag: (N,) the samples that were analysed (s, mag).
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from jaxlc.period import fold_phase
+
+    fig, (ax, ax2) = plt.subplots(2, 1, figsize=(8, 7))
+    period = 1.0 / result.frequency_hz
+    ax.plot(period, result.power, lw=0.7, color="tab:blue")
+    ax.set_xscale("log")
+    ax.axvline(result.ls_period_s, color="tab:red", ls="--", lw=1, label="periodogram peak")
+    if result.harmonic_factor == 2:
+        ax.axvline(result.period_s, color="tab:green", lw=1.2, label="spin period (2 × peak)")
+    if np.isfinite(result.catalogue_period_s):
+        ax.axvline(result.catalogue_period_s, color="0.4", ls=":", lw=1.2, label="catalogue")
+    ax.set_xlabel("period (s)")
+    ax.set_ylabel("Lomb–Scargle power")
+    ax.legend(fontsize="small", frameon=False)
+    ax.set_title(
+        title
+        or f"P = {result.period_s:.5g} s (peak {result.ls_period_s:.5g} s, "
+        f"FAP {result.false_alarm_probability:.1e})"
+    )
+    t = np.asarray(t_s)
+    y = np.asarray(mag)
+    phase = fold_phase(t - t.min(), result.period_s)
+    ax2.scatter(phase, y, s=3, c=t - t.min(), cmap="viridis", alpha=0.6)
+    bins = np.linspace(0, 1, 41)
+    idx = np.digitize(phase, bins) - 1
+    med = [np.median(y[idx == b]) if np.any(idx == b) else np.nan for b in range(40)]
+    ax2.plot(0.5 * (bins[1:] + bins[:-1]), med, color="k", lw=1.5, label="binned median")
+    ax2.invert_yaxis()
+    ax2.set_xlabel(f"rotational phase (P = {result.period_s:.5g} s; colour: time)")
+    ax2.set_ylabel("magnitude")
+    ax2.legend(fontsize="small", frameon=False)
+    ax2.text(0.01, 0.02, result.decision, transform=ax2.transAxes, fontsize=7, wrap=True)
+    fig.tight_layout()
+    path = Path(path)
+    with atomic_output(path) as tmp:
+        fig.savefig(tmp, dpi=110, format=path.suffix.lstrip(".") or "png")
+    plt.close(fig)
+    return path
+
+
+def plot_corner(samples: pd.DataFrame, path: str | Path, columns=None) -> Path:
+    """Pairwise posterior: histograms on the diagonal, 2-D histograms below it."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    columns = columns or [
+        "pole_ra_deg",
+        "pole_dec_deg",
+        "period_s",
+        "phase_deg",
+        "dmag",
+        "noise_mag",
+    ]
+    k = len(columns)
+    fig, axes = plt.subplots(k, k, figsize=(1.9 * k, 1.9 * k))
+    for i, ci in enumerate(columns):
+        for j, cj in enumerate(columns):
+            ax = axes[i, j]
+            if j > i:
+                ax.axis("off")
+                continue
+            if i == j:
+                ax.hist(samples[ci], bins=40, color="tab:blue", histtype="step")
+                ax.set_yticks([])
+            else:
+                ax.hist2d(samples[cj], samples[ci], bins=40, cmap="Blues")
+            if i == k - 1:
+                ax.set_xlabel(cj, fontsize=8)
+            else:
+                ax.set_xticklabels([])
+            if j == 0 and i > 0:
+                ax.set_ylabel(ci, fontsize=8)
+            elif j > 0:
+                ax.set_yticklabels([])
+            ax.tick_params(labelsize=6)
+    fig.suptitle(f"posterior ({len(samples)} samples)")
+    fig.tight_layout()
+    path = Path(path)
+    with atomic_output(path) as tmp:
+        fig.savefig(tmp, dpi=100, format=path.suffix.lstrip(".") or "png")
+    plt.close(fig)
+    return path
+
+
+def plot_fit(t_s, mag, model_mag, path: str | Path, summary: dict | None = None) -> Path:
+    """Observed magnitudes with the fitted model above the residuals."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax, ax2) = plt.subplots(
+        2, 1, figsize=(9, 5.5), sharex=True, gridspec_kw={"height_ratios": [3, 1.2]}
+    )
+    ax.plot(t_s, mag, ".", ms=2.5, color="k", label="data")
+    ax.plot(t_s, model_mag, "-", lw=0.8, color="tab:red", label="MAP model")
+    ax.invert_yaxis()
+    ax.set_ylabel("magnitude")
+    ax.legend(fontsize="small", frameon=False)
+    if summary is not None:
+        ax.set_title(
+            f"P = {summary['period_s']:.5g} s, pole ({summary['pole_ra_deg']:.1f}°, "
+            f"{summary['pole_dec_deg']:.1f}°), noise {summary['noise_mag']:.3f} mag"
+        )
+    r = np.asarray(mag) - np.asarray(model_mag)
+    ax2.plot(t_s, r, ".", ms=2, color="tab:blue")
+    ax2.axhline(0, color="k", lw=0.5)
+    ax2.set_ylabel("data − model")
+    ax2.set_xlabel("time from the fit epoch (s)")
+    fig.tight_layout()
+    path = Path(path)
+    with atomic_output(path) as tmp:
+        fig.savefig(tmp, dpi=110, format=path.suffix.lstrip(".") or "png")
+    plt.close(fig)
+    return path

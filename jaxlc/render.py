@@ -34,7 +34,7 @@ from jaxlc.attitude import AbstractAttitude
 from jaxlc.blur import subexposure_times
 from jaxlc.brdf import FacetModel, facet_intensity, facet_model
 from jaxlc.errors import JaxlcError
-from jaxlc.mesh import load_mesh
+from jaxlc.mesh import Facets, load_mesh
 from jaxlc.plan import RenderOptions, RenderPlan, make_plan
 from jaxlc.scene import Scene, load_scene
 from jaxlc.shadow import ShadowSettings, ShadowTable, lit_seen_fraction, shadow_data, shadow_table
@@ -320,6 +320,7 @@ def space_object(
     dtype=jnp.float32,
     shadow: ShadowSettings | None = None,
     progress=None,
+    facets: Facets | None = None,
 ) -> SpaceObject:
     """The traced object of a scene, its attitude referred to ``origin_utc``.
 
@@ -330,8 +331,10 @@ def space_object(
         shadow: shadow resolution, or None for no self-shadowing. A convex mesh
             never gets shadow data.
         progress: optional callable(done, total) while a shadow table is traced.
+        facets: facets to use instead of the scene's (e.g. a coarsened set
+            whose ``triangle_facet`` maps the mesh's triangles onto them).
     """
-    facets = scene.facets
+    facets = scene.facets if facets is None else facets
     materials = scene.materials_for(facets.part_names)
     attitude = scene.attitude.build(origin_utc, dtype)
     data = None

@@ -1,0 +1,231 @@
+"""Observed light curves, period analysis and the spin fit (issue 6)."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import jaxlc
+from jaxlc.errors import JaxlcError, TableError
+from jaxlc.observations import read_mmt, read_observations
+from jaxlc.period import analyse_period
+
+DATA = Path(__file__).parent / "data"
+MMT = {
+    "10025_10114859.txt": 11.7586764,  # ATLAS CENTAUR R/B, catalogue period (s)
+    "32295_9578905.txt": 1.240248,  # ARIANE 5 R/B
+}
+
+
+# ---------------------------------------------------------------------------
+# Readers
+
+
+def test_mmt_reader_reads_published_tracks():
+    obs = read_mmt(DATA / "mmt" / "10025_10114859.txt")
+    assert len(obs) == 3145  # the header's npoints
+    assert obs.attrs["norad_id"] == "10025"
+    assert obs.attrs["catalogue_period_s"] == pytest.approx(11.7586764)
+    assert obs["t_s"].iloc[0] == 0.0
+    # first row: 2016-01-21 01:15:50.993 Mag 9.17127, Distance 10061.037 km, Phase 62.881
+    assert obs["mag"].iloc[0] == pytest.approx(9.17127)
+    assert obs["range_m"].iloc[0] == pytest.approx(10061.037e3)
+    assert obs["phase_angle_deg"].iloc[0] == pytest.approx(62.881)
+    assert np.all(np.diff(obs["t_s"]) > 0)
+
+
+def test_mmt_reader_accepts_times_without_fraction(tmp_path):
+    text = (DATA / "mmt" / "32295_9578905.txt").read_text().splitlines()
+    lines = [*text[:9], "2015-12-05 20:00:00 4.0 8.0 Clear 0 1000.0 50.0 1"]
+    p = tmp_path / "t.txt"
+    p.write_text("\n".join(lines) + "\n")
+    with pytest.warns(UserWarning, match="npoints"):
+        obs = read_mmt(p)
+    assert str(obs["utc"].iloc[-1]).startswith("2015-12-05 20:00:00")
+
+
+@pytest.mark.parametrize(
+    "bad, message",
+    [
+        ("2015-12-05 19:50:00.1 4.0 8.0 Clear 0 1000.0", "truncated"),
+        ("2015-12-05 19:50:00.1 4.0 x8 Clear 0 1000.0 50.0 1", "Mag"),
+        ("2015-13-45 19:50:00.1 4.0 8.0 Clear 0 1000.0 50.0 1", "UTC"),
+    ],
+)
+def test_mmt_reader_names_the_bad_line(tmp_path, bad, message):
+    text = (DATA / "mmt" / "32295_9578905.txt").read_text().splitlines()
+    p = tmp_path / "bad.txt"
+    p.write_text("\n".join([*text[:20], bad]) + "\n")
+    with pytest.raises(TableError, match=rf"bad.txt:21:.*{message}"):
+        read_mmt(p)
+
+
+def test_mmt_reader_requires_its_header(tmp_path):
+    p = tmp_path / "plain.txt"
+    p.write_text("# something else\n2015-12-05 19:50:00.1 4.0 8.0 Clear 0 1000.0 50.0 1\n")
+    with pytest.raises(TableError, match="satellite"):
+        read_mmt(p)
+    with pytest.raises(TableError, match="neither"):
+        read_observations(p)
+
+
+# ---------------------------------------------------------------------------
+# Period analysis
+
+
+def _samples(n=1500, span=600.0, seed=0):
+    rng = np.random.default_rng(seed)
+    return np.sort(rng.uniform(0, span, n)), rng
+
+
+def test_period_two_unequal_maxima_per_turn_is_twice_the_peak():
+    t, rng = _samples()
+    p = 37.3
+    y = 0.4 * np.cos(4 * np.pi * t / p) + 0.12 * np.cos(2 * np.pi * t / p + 1.0)
+    y = y + 0.05 * rng.standard_normal(t.size)
+    r = analyse_period(t, y)
+    assert r.ls_period_s == pytest.approx(p / 2, rel=2e-3)
+    assert r.harmonic_factor == 2
+    assert r.period_s == pytest.approx(p, rel=2e-3)
+    assert r.false_alarm_probability < 1e-10
+
+
+def test_period_identical_halves_keep_the_peak_and_flag_the_double():
+    t, rng = _samples(seed=1)
+    p = 37.3
+    y = 0.4 * np.cos(4 * np.pi * t / p) + 0.05 * rng.standard_normal(t.size)
+    r = analyse_period(t, y)
+    assert r.harmonic_factor == 1
+    assert r.period_s == pytest.approx(p / 2, rel=2e-3)
+    assert r.alternative_period_s == pytest.approx(p, rel=2e-3)
+
+
+def test_period_of_noise_has_a_large_false_alarm_probability():
+    t, rng = _samples(seed=2)
+    r = analyse_period(t, 0.05 * rng.standard_normal(t.size))
+    assert r.false_alarm_probability > 0.01
+
+
+def test_period_rejects_too_few_samples():
+    with pytest.raises(JaxlcError, match="at least 10"):
+        analyse_period(np.arange(5.0), np.zeros(5))
+
+
+@pytest.mark.parametrize("name", sorted(MMT))
+def test_period_recovers_the_mmt_period_or_flags_half(name):
+    from jaxlc.observations import observed_samples
+
+    obs = read_observations(DATA / "mmt" / name)
+    t, y, _ = observed_samples(obs, "std_mag")
+    r = analyse_period(t, y)
+    true = MMT[name]
+    if r.harmonic_factor == 2:
+        assert r.period_s == pytest.approx(true, rel=0.01)
+    else:  # the half period, flagged: the alternative is the catalogue's
+        assert r.period_s == pytest.approx(true / 2, rel=0.01)
+        assert r.alternative_period_s == pytest.approx(true, rel=0.01)
+
+
+def test_period_cli_json(capsys):
+    from jaxlc.cli import main
+
+    assert main(["period", str(DATA / "mmt" / "10025_10114859.txt"), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    for key in ("period_s", "ls_period_s", "false_alarm_probability", "harmonic_factor"):
+        assert key in out
+    assert out["harmonic_factor"] in (1, 2)
+    assert out["period_s"] == pytest.approx(MMT["10025_10114859.txt"], rel=0.01)
+
+
+# ---------------------------------------------------------------------------
+# The fit model
+
+
+def test_coarsened_facets_conserve_area_and_area_vector():
+    from jaxlc.inference import coarsen_facets
+
+    f = jaxlc.load_scene("experiments/scenes/s4_falcon9.toml").facets
+    c = coarsen_facets(f, 64)
+    assert c.n_facets < f.n_facets
+    for part in range(len(f.part_names)):
+        a, b = f.part == part, c.part == part
+        assert c.areas_m2[b].sum() == pytest.approx(f.areas_m2[a].sum(), rel=1e-12)
+    valid = f.triangle_facet >= 0
+    # every triangle keeps its part
+    assert np.all(c.part[c.triangle_facet[valid]] == f.part[f.triangle_facet[valid]])
+
+
+@pytest.fixture(scope="module")
+def cubesat_case():
+    from jaxlc.plan import RenderOptions
+
+    scene = jaxlc.load_scene("experiments/scenes/s5_cubesat.toml")
+    geo = jaxlc.synthetic_geometry(
+        duration_s=600, step_s=1.0, phase_start_deg=20, phase_end_deg=90, tilt_deg=40
+    )
+    lc = jaxlc.render(scene, geo, options=RenderOptions(blur="off"))
+    rng = np.random.default_rng(7)
+    lc["mag"] = lc["mag"] + 0.05 * rng.standard_normal(len(lc))
+    return scene, geo, lc
+
+
+def test_model_at_the_truth_reproduces_render(cubesat_case):
+    """The fit's model (LM coordinates) equals jaxlc.render at the scene's own spin."""
+    import jax.numpy as jnp
+
+    from jaxlc.attitude import phase_at_offset_deg, pole_vector
+    from jaxlc.inference import data_arrays, fit_data, spin_model
+    from jaxlc.plan import RenderOptions
+
+    scene, geo, _ = cubesat_case
+    clean = jaxlc.render(scene, geo, options=RenderOptions(blur="off"))
+    data = fit_data(clean, geo)
+    a = scene.attitude
+    off = (data.epoch_utc - a.epoch_utc).total_seconds()
+    phase = math.radians(phase_at_offset_deg(a.phase_deg, a.period_s, off))
+    u = np.asarray(pole_vector(math.radians(a.pole_ra_deg), math.radians(a.pole_dec_deg)))
+    theta = jnp.asarray([*u, math.log(a.period_s), phase, 0.0], jnp.float32)
+    m = np.asarray(spin_model(scene, data.limit_mag).magnitudes(theta, *data_arrays(data)))
+    bright = data.mag < data.limit_mag - 1
+    assert np.max(np.abs(m[bright] - data.mag[bright])) < 2e-3
+
+
+def test_fit_data_needs_matching_geometry(cubesat_case):
+    from jaxlc.inference import fit_data
+
+    _, geo, lc = cubesat_case
+    with pytest.raises(JaxlcError, match="no geometry row"):
+        fit_data(lc, geo.iloc[: len(geo) // 2])
+
+
+def test_fit_recovers_spin_state(cubesat_case, tmp_path):
+    """A small, fixed-seed version of experiments/sbc_fit.py."""
+    from jaxlc.fit import fit_spin
+    from jaxlc.mcmc import FitSettings
+
+    scene, geo, lc = cubesat_case
+    settings = FitSettings(n_starts=256, max_steps=500, mcmc_modes=1, seed=3, period_s=10.0)
+    r = fit_spin(scene, lc, geo, settings, out_dir=tmp_path)
+    a = scene.attitude
+    assert r["period_s"] == pytest.approx(a.period_s, rel=1e-3)
+    u_true = np.array(
+        [
+            math.cos(math.radians(a.pole_dec_deg)) * math.cos(math.radians(a.pole_ra_deg)),
+            math.cos(math.radians(a.pole_dec_deg)) * math.sin(math.radians(a.pole_ra_deg)),
+            math.sin(math.radians(a.pole_dec_deg)),
+        ]
+    )
+    ra, dec = math.radians(r["pole_ra_deg"]), math.radians(r["pole_dec_deg"])
+    u_fit = np.array([math.cos(dec) * math.cos(ra), math.cos(dec) * math.sin(ra), math.sin(dec)])
+    assert math.degrees(math.acos(min(1.0, float(u_true @ u_fit)))) < 3.0
+    assert r["noise_mag"] == pytest.approx(0.05, rel=0.15)
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    for key in ("period_s", "pole_ra_deg", "pole_dec_deg", "modes", "diagnostics", "intervals"):
+        assert key in summary
+    assert summary["diagnostics"]["acceptance"] > 0.05
+    for f in ("samples.parquet", "corner.png", "fit.png"):
+        assert (tmp_path / f).stat().st_size > 0
