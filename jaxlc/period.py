@@ -16,8 +16,8 @@ between the periodogram period P_ls and 2 P_ls is made from the data:
 ``alternative_period_s`` is the other candidate (2 P_ls when the
 decision is P_ls, P_ls when it is 2 P_ls). ``harmonic_factor`` is 2 when
 both say the halves differ (ΔBIC > 10 and the halves' p < 0.01), 1
-otherwise — then the object may still turn in 2 P_ls with two identical halves, which photometry cannot tell apart, and the
-summary says so.
+otherwise — then the object may still turn in 2 P_ls with two identical
+halves, which photometry cannot tell apart, and the summary says so.
 
 Example:
     >>> result = analyse_period(t_s, mag)

@@ -1,0 +1,292 @@
+"""Bulk dataset generation speed: light curves/s for the standard bulk mix.
+
+The standard bulk mix (``experiments/configs/bulk_standard.toml``: S3–S6,
+random spins, 1,800 samples each, shadows and motion blur where the render
+plan says a curve needs them, noise) rendered with ``jaxlc.dataset.generate``:
+
+A. per shape class, in this process: renders (one per sub-exposure) per
+   second and light curves per second of the batched kernel, after warm-up;
+B. whole runs into a fresh Zarr store: in-process (``workers=0``) and on a
+   local Dask cluster with 1 and 2 worker processes — wall time of
+   ``generate()`` including cluster start-up, compilation in every worker and
+   writing, so light curves/s = count / wall time;
+C. the same mix with motion blur capped at ``--caps`` sub-exposures per
+   exposure (2 workers; 1 = no blur), and the error against B on the very
+   same curves (same seed): median / 95th percentile / max |Δm| over visible
+   samples, for all curves and per class.
+
+Rates are count / wall time of ``generate()``, and over the shards after the
+first one finishes ("steady": without start-up and compilation).
+
+Each run of B and C is a fresh Python process (no compilation carried over).
+The machine's load average is recorded beside each row: these machines are
+shared, so compare rows of one run. Writes
+``experiments/results/bench_generate.csv``.
+
+    python experiments/bench_generate.py [--count 1000] [--caps 8,1] [--quick]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE.parent))
+
+import jaxlc  # noqa: E402
+from jaxlc.dataset import draw_curve, load_config  # noqa: E402
+from jaxlc.tables import write_table  # noqa: E402
+
+CONFIG = HERE / "configs" / "bulk_standard.toml"
+
+#: Runs in a fresh interpreter: time generate() only (not Python and JAX start-up).
+RUN = """
+import dataclasses as dc, json, sys, time
+import jaxlc.dataset as d
+cfg = d.load_config(sys.argv[1])
+cap = int(sys.argv[5])
+if cap:  # cap the automatic sub-exposure count of every class
+    cfg = dc.replace(cfg, classes=tuple(
+        dc.replace(c, render=dc.replace(c.render, max_subsamples=cap)) for c in cfg.classes))
+stamps = []
+t0 = time.perf_counter()
+ds = d.generate(cfg, sys.argv[2], workers=int(sys.argv[3]), count=int(sys.argv[4]),
+                progress=False, on_shard=lambda k: stamps.append(time.perf_counter()))
+seconds = time.perf_counter() - t0
+first = len(cfg.shard_rows(0))
+steady = (len(ds) - first) / (stamps[-1] - stamps[0]) if len(stamps) > 1 else float("nan")
+print(json.dumps({"seconds": seconds, "curves": len(ds), "steady": steady,
+                  "renders": int(ds.labels["subsamples"].sum())}))
+"""
+
+
+def class_rates(config, count, repeats=2):
+    """Table A: the batched kernel per class, in this process, after a warm-up call."""
+    from jaxlc import generate as G
+
+    curves = [draw_curve(config, i) for i in range(count)]
+    geos = [G.curve_geometry(config, c) for c in curves]
+    rows = []
+    for cid, cls in enumerate(config.classes):
+        idx = [j for j, c in enumerate(curves) if c.class_id == cid]
+        if not idx:
+            continue
+        kit = G.class_kit(cls)
+        cs, gs = [curves[j] for j in idx], [geos[j] for j in idx]
+        G._render_class(config, cls, kit, cs[:1], gs[:1])  # compile
+        best = np.inf
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            _, subs = G._render_class(config, cls, kit, cs, gs)
+            best = min(best, time.perf_counter() - t0)
+        rows.append(
+            dict(
+                table="A",
+                variant=cls.name,
+                workers="in-process",
+                facets=kit.ordered.n_facets,
+                shadows=kit.shadow is not None,
+                curves=len(idx),
+                subsamples_mean=float(np.mean(subs)),
+                seconds=best,
+                renders_per_s=float(np.sum(subs)) / best,
+                lightcurves_per_s=len(idx) / best,
+                load_avg=os.getloadavg()[0],
+            )
+        )
+    return rows
+
+
+def run(store, workers, count, cap=0):
+    """One generate() in a fresh process.
+
+    Returns:
+        (seconds, curves, renders, curves/s after the first shard, load average).
+    """
+    load = os.getloadavg()[0]
+    r = subprocess.run(
+        [sys.executable, "-c", RUN, str(CONFIG), str(store), str(workers), str(count), str(cap)],
+        capture_output=True,
+        text=True,
+        timeout=3600,
+        env={**os.environ, "PYTHONWARNINGS": "ignore"},
+    )
+    if r.returncode != 0:
+        raise RuntimeError(f"generate (workers={workers}) failed:\n{r.stderr[-3000:]}")
+    out = json.loads(r.stdout.strip().splitlines()[-1])
+    load = max(load, os.getloadavg()[0])
+    return out["seconds"], out["curves"], out["renders"], out["steady"], load
+
+
+def errors(a, b) -> list[dict]:
+    """|Δm| between two stores of the same curves over samples visible in both, per class."""
+    ma, mb = a.load("mag").astype(np.float64), b.load("mag").astype(np.float64)
+    ok = np.isfinite(ma) & np.isfinite(mb)
+    out = []
+    classes = a.labels["class"].to_numpy()
+    for name in [None, *dict.fromkeys(classes)]:
+        rows = np.ones(len(classes), bool) if name is None else classes == name
+        d = np.abs(ma[rows][ok[rows]] - mb[rows][ok[rows]])
+        out.append(
+            dict(
+                variant="all classes" if name is None else str(name),
+                err_median_mag=float(np.median(d)),
+                err_p95_mag=float(np.percentile(d, 95)),
+                err_max_mag=float(d.max()),
+            )
+        )
+    return out
+
+
+def _fmt(x, spec: str) -> str:
+    return "" if x is None or (isinstance(x, float) and not np.isfinite(x)) else format(x, spec)
+
+
+def print_table(df: pd.DataFrame) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(
+        title="jaxlc bulk generation: the standard mix (S3–S6, 1,800 samples, auto shadows/blur)",
+        caption="A: batched kernel per class (in-process, warm); B: whole generate() runs "
+        "(fresh process; curves/s includes cluster start-up and compilation, steady: after the "
+        "first shard); C: blur capped, |Δm| against B",
+    )
+    for col in (
+        "table",
+        "variant",
+        "workers",
+        "curves",
+        "sub-exp.",
+        "s",
+        "renders/s",
+        "curves/s",
+        "steady",
+        "|Δm| med / p95 / max",
+        "load",
+    ):
+        table.add_column(col, justify="left" if col in ("table", "variant") else "right")
+    for r in df.itertuples():
+        err = ""
+        if isinstance(getattr(r, "err_max_mag", None), float) and np.isfinite(r.err_max_mag):
+            err = f"{r.err_median_mag:.1e} / {r.err_p95_mag:.1e} / {r.err_max_mag:.1e}"
+        table.add_row(
+            r.table,
+            r.variant,
+            str(r.workers),
+            str(r.curves),
+            _fmt(r.subsamples_mean, ".1f"),
+            _fmt(r.seconds, ".1f"),
+            _fmt(r.renders_per_s, ",.0f"),
+            _fmt(r.lightcurves_per_s, ",.1f"),
+            _fmt(getattr(r, "steady_lightcurves_per_s", np.nan), ",.1f"),
+            err,
+            _fmt(r.load_avg, ".1f"),
+        )
+    Console(width=170).print(table)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--count", type=int, default=1000, help="curves per run of B and C")
+    parser.add_argument("--caps", default="8,1", help="sub-exposure caps of table C")
+    parser.add_argument("--workers", default="0,1,2", help="worker counts of table B")
+    parser.add_argument("--quick", action="store_true", help="a few curves (smoke test)")
+    parser.add_argument("--out", type=Path, default=HERE / "results" / "bench_generate.csv")
+    args = parser.parse_args(argv)
+    count = 24 if args.quick else args.count
+    config = load_config(CONFIG)
+    rows = class_rates(config, min(count, 200), repeats=1 if args.quick else 2)
+
+    caps = [int(c) for c in args.caps.split(",") if c.strip()]
+    variants = [(0, int(w)) for w in args.workers.split(",")] + [(c, 2) for c in caps]
+    with tempfile.TemporaryDirectory(prefix="bench_generate_") as tmp:
+        stores = {}
+        for cap, workers in variants:
+            store = Path(tmp) / f"cap{cap}_workers{workers}.zarr"
+            seconds, curves, renders, steady, load = run(store, workers, count, cap)
+            stores[(cap, workers)] = store
+            rows.append(
+                dict(
+                    table="C" if cap else "B",
+                    variant=f"blur ≤ {cap} sub-exposure(s)" if cap else "standard mix",
+                    workers=workers if workers else "in-process",
+                    curves=curves,
+                    subsamples_mean=renders / curves,
+                    seconds=seconds,
+                    renders_per_s=renders / seconds,
+                    lightcurves_per_s=curves / seconds,
+                    steady_lightcurves_per_s=steady,
+                    load_avg=load,
+                )
+            )
+            name = f"cap {cap}" if cap else "auto"
+            print(
+                f"{name}, workers {workers}: {curves / seconds:.1f} curves/s "
+                f"({steady:.1f} after the first shard)",
+                flush=True,
+            )
+        auto = [k for k in stores if k[0] == 0]
+        ref = jaxlc.dataset.open(stores[auto[-1]])
+        ref_mag = ref.load("mag")
+        same = [
+            bool(np.array_equal(ref_mag, jaxlc.dataset.open(stores[k]).load("mag"), equal_nan=True))
+            for k in auto
+        ]
+        for cap in caps:
+            capped = jaxlc.dataset.open(stores[(cap, 2)])
+            per_class = errors(ref, capped)
+            at = next(
+                i for i, r in enumerate(rows) if r["variant"] == f"blur ≤ {cap} sub-exposure(s)"
+            )
+            rows[at].update({k: v for k, v in per_class[0].items() if k != "variant"})
+            subs = capped.labels.groupby("class", observed=True)["subsamples"].mean()
+            for j, e in enumerate(per_class[1:], 1):
+                rows.insert(
+                    at + j,
+                    dict(
+                        table="C",
+                        workers="",
+                        curves=int((capped.labels["class"] == e["variant"]).sum()),
+                        subsamples_mean=float(subs[e["variant"]]),
+                        **{**e, "variant": f"  {e['variant']}"},
+                    ),
+                )
+    df = pd.DataFrame(rows)
+    import jax
+
+    df.attrs.update(
+        {
+            "generator": "experiments/bench_generate.py",
+            "config": str(CONFIG.relative_to(HERE.parent)),
+            "count": str(count),
+            "identical_mag_across_worker_counts": str(all(same)),
+            "jaxlc": jaxlc.__version__,
+            "jax": jax.__version__,
+            "backend": jax.default_backend(),
+            "cpu_count": str(os.cpu_count()),
+            "machine": f"{platform.machine()} {platform.processor() or ''}".strip(),
+            "date_utc": pd.Timestamp.now(tz="UTC").strftime("%Y-%m-%dT%H:%M:%SZ"),
+            "quick": str(args.quick),
+        }
+    )
+    print_table(df)
+    print(f"identical magnitudes for every worker count: {all(same)}")
+    write_table(df, args.out)
+    print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
