@@ -73,22 +73,22 @@ print(json.dumps({"seconds": seconds, "curves": len(ds), "steady": steady,
 
 def class_rates(config, count, repeats=2):
     """Table A: the batched kernel per class, in this process, after a warm-up call."""
-    from jaxlc import generate as G
+    from jaxlc import bulk_render as R
 
     curves = [draw_curve(config, i) for i in range(count)]
-    geos = [G.curve_geometry(config, c) for c in curves]
+    geos = [R.curve_geometry(config, c) for c in curves]
     rows = []
     for cid, cls in enumerate(config.classes):
         idx = [j for j, c in enumerate(curves) if c.class_id == cid]
         if not idx:
             continue
-        kit = G.class_kit(cls)
+        kit = R.class_kit(cls)
         cs, gs = [curves[j] for j in idx], [geos[j] for j in idx]
-        G._render_class(config, cls, kit, cs[:1], gs[:1])  # compile
+        R.render_class(config, cls, kit, cs[:1], gs[:1])  # compile
         best = np.inf
         for _ in range(repeats):
             t0 = time.perf_counter()
-            _, subs = G._render_class(config, cls, kit, cs, gs)
+            _, subs = R.render_class(config, cls, kit, cs, gs)
             best = min(best, time.perf_counter() - t0)
         rows.append(
             dict(

@@ -36,7 +36,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from jaxlc.dataset import FORMAT, DatasetError
+from jaxlc.dataset_config import DatasetError
+
+#: Format tag written into every store's attributes.
+FORMAT = "jaxlc-dataset/1"
 
 #: Per-sample arrays: dtype, fill value, unit/meaning; the noisy ones only with noise.
 ARRAYS = {

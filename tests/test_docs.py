@@ -33,7 +33,17 @@ def test_readme_python_example_runs(tmp_path):
 def test_readme_cli_example_commands_exist():
     text = (REPO / "README.md").read_text()
     for cmd in re.findall(r"^jaxlc (\w+)", text, flags=re.M):
-        assert cmd in ("geometry", "render", "info", "passes", "sites", "generate"), cmd
+        assert cmd in (
+            "geometry",
+            "render",
+            "info",
+            "passes",
+            "sites",
+            "generate",
+            "period",
+            "fit",
+            "calibrate",
+        ), cmd
     assert "make demo" in text and "make test" in text
 
 
