@@ -33,8 +33,8 @@ import pandas as pd
 from calibrate.job import BlenderOptions
 from calibrate.render import blender_render
 from jaxlc.brdf import ASGlossy, Lambert
-from jaxlc.files import atomic_output
 from jaxlc.plan import RenderOptions
+from jaxlc.plot import save_figure
 from jaxlc.scene import MaterialSpec, Scene, load_scene
 from jaxlc.tables import write_table
 
@@ -248,11 +248,7 @@ def plot_scene(frames_df: pd.DataFrame, summary: pd.DataFrame, path: Path) -> Pa
     res.set_xlabel("phase angle (°)")
     res.legend(fontsize=7)
     res.grid(alpha=0.3)
-    fig.tight_layout()
-    with atomic_output(path) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=110)
 
 
 def timing_sweep(

@@ -111,7 +111,7 @@ def blender_render(
         row; ``attrs`` record the renderer and its settings.
     """
     from jaxlc.plan import make_plan
-    from jaxlc.render import geometry_arrays
+    from jaxlc.render import geometry_arrays, lightcurve_table
 
     options = options or BlenderOptions()
     if not isinstance(scene, Scene):
@@ -187,20 +187,8 @@ def blender_render(
                 flux = photometry.C_SUN_VIS_W_M2 * 10 ** (-0.4 * (mag - photometry.M_SUN_V))
                 intensity[idx] = flux * rng**2 / e
 
-    flux = photometry.flux_w_m2(intensity, geo.irradiance_w_m2, geo.range_m)
-    out = pd.DataFrame(
-        {
-            "utc": table["utc"],
-            "t_s": table["t_s"],
-            "mag": photometry.magnitude(flux),
-            "flux_w_m2": flux,
-            "phase_angle_deg": geo.phase_angle_deg,
-            "range_m": geo.range_m,
-            "exposure_s": geo.exposure_s,
-            "visible": geo.visible,
-            "blender_pixel_sum": pixel_sum,
-            "blender_seconds": seconds,
-        }
+    out = lightcurve_table(
+        table, geo, intensity, blender_pixel_sum=pixel_sum, blender_seconds=seconds
     )
     out.attrs.update(
         {

@@ -27,8 +27,8 @@ import jaxlc
 from calibrate.crosscheck import SCENES, _stats, crosscheck_geometry
 from calibrate.job import BlenderOptions
 from calibrate.render import blender_render
-from jaxlc.files import atomic_output
 from jaxlc.plan import RenderOptions
+from jaxlc.plot import save_figure
 from jaxlc.scene import load_scene
 from jaxlc.tables import write_table
 
@@ -68,10 +68,7 @@ def main(frames: int = 24) -> pd.DataFrame:
     ax.set_ylabel("m(Cycles) − m(JAX) [mag]")
     ax.set_title("ashikhmin-shirley: Cycles' closest material vs the facet model")
     ax.legend()
-    fig.tight_layout()
-    with atomic_output(OUT / "as_mismatch.png") as tmp:
-        fig.savefig(tmp, format="png", dpi=120)
-    plt.close(fig)
+    save_figure(fig, OUT / "as_mismatch.png", dpi=120)
     return summary
 
 

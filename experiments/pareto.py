@@ -223,7 +223,7 @@ def plot(df: pd.DataFrame, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from jaxlc.files import atomic_output
+    from jaxlc.plot import save_figure
 
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.6))
     panels = [
@@ -273,10 +273,7 @@ def plot(df: pd.DataFrame, path: Path) -> None:
         ax.set_ylabel(yl)
         ax.grid(alpha=0.3, which="both")
         ax.legend(fontsize=8)
-    fig.tight_layout()
-    with atomic_output(path) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)
 
 
 def main(argv=None) -> int:

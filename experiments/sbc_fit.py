@@ -143,7 +143,7 @@ def plot(df: pd.DataFrame, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from jaxlc.files import atomic_output
+    from jaxlc.plot import save_figure
 
     fig, ax = plt.subplots(1, 3, figsize=(12, 3.6))
     ax[0].loglog(df.true_period_s, np.abs(df.period_rel_err) + 1e-9, "o", ms=4)
@@ -161,10 +161,7 @@ def plot(df: pd.DataFrame, path: Path) -> None:
         f"90%: period {df.period_in_90.mean():.2f}, pole {df.pole_in_90.mean():.2f}"
     )
     fig.suptitle(f"SBC, {len(df)} cases — {cov}", fontsize=10)
-    fig.tight_layout()
-    with atomic_output(path) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)
 
 
 def main(argv=None) -> pd.DataFrame:

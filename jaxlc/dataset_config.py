@@ -53,7 +53,6 @@ are drawn uniformly, periods, exponents and ranges log-uniformly (see
 from __future__ import annotations
 
 import dataclasses
-import difflib
 import hashlib
 import json
 import math
@@ -68,7 +67,14 @@ from jaxlc.errors import JaxlcError
 from jaxlc.geometry.observe import Visibility
 from jaxlc.mesh import load_mesh
 from jaxlc.plan import RenderOptions
-from jaxlc.scene import SHIPPED_MESHES, MaterialSpec, Scene, _parse_render, load_scene
+from jaxlc.scene import (
+    SHIPPED_MESHES,
+    MaterialSpec,
+    Scene,
+    _parse_render,
+    _Section,
+    load_scene,
+)
 
 
 class DatasetError(JaxlcError):
@@ -83,13 +89,11 @@ MAX_COUNT = 1_000_000_000
 # Strict TOML tables
 
 
-class _Table:
-    """Typed access to one TOML table that remembers which keys were used."""
+class _Table(_Section):
+    """A scene-style TOML table reader (:class:`jaxlc.scene._Section`) raising
+    :class:`DatasetError`, with ranges, integer and string-list kinds."""
 
-    def __init__(self, data, where: str):
-        if not isinstance(data, dict):
-            raise DatasetError(f"{where} must be a table, got {data!r}")
-        self.data, self.where, self.used = data, where, set()
+    error = DatasetError
 
     def has(self, key) -> bool:
         self.used.add(key)
@@ -181,15 +185,6 @@ class _Table:
             bound = f"({lo:g}, {hi:g}]" if positive else f"[{lo:g}, {hi:g}]"
             raise DatasetError(f"{self.where}: {key} = {value!r} must lie in {bound}")
         return pair
-
-    def finish(self):
-        unknown = sorted(set(self.data) - self.used)
-        if unknown:
-            key = unknown[0]
-            close = difflib.get_close_matches(key, sorted(self.used), n=1)
-            hint = f"; did you mean {close[0]!r}?" if close else ""
-            allowed = ", ".join(sorted(self.used))
-            raise DatasetError(f"{self.where}: unknown key {key!r}{hint} (allowed here: {allowed})")
 
 
 def _whole(lo, hi):

@@ -10,6 +10,18 @@ import pandas as pd
 from jaxlc.files import atomic_output
 
 
+def save_figure(fig, path: str | Path, dpi: int = 120) -> Path:
+    """Lay out, save atomically (format from the extension: png, pdf, svg) and close."""
+    import matplotlib.pyplot as plt
+
+    fig.tight_layout()
+    path = Path(path)
+    with atomic_output(path) as tmp:
+        fig.savefig(tmp, dpi=dpi, format=path.suffix.lstrip(".") or "png")
+    plt.close(fig)
+    return path
+
+
 def plot_lightcurve(lc: pd.DataFrame, path: str | Path, title: str | None = None) -> Path:
     """Magnitude against time above phase angle and range; saved atomically.
 
@@ -42,12 +54,7 @@ def plot_lightcurve(lc: pd.DataFrame, path: str | Path, title: str | None = None
     ax2.set_xlabel("time since first sample (s)")
     n_vis = int(visible.sum())
     ax.set_title(title or f"light curve: {n_vis} of {len(lc)} samples visible")
-    fig.tight_layout()
-    path = Path(path)
-    with atomic_output(path) as tmp:
-        fig.savefig(tmp, dpi=120, format=path.suffix.lstrip(".") or "png")
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=120)
 
 
 def _shade_invisible(ax, t, visible):
@@ -102,12 +109,7 @@ def plot_period(result, t_s, mag, path: str | Path, title: str | None = None) ->
     ax2.set_ylabel("magnitude")
     ax2.legend(fontsize="small", frameon=False)
     ax2.text(0.01, 0.02, result.decision, transform=ax2.transAxes, fontsize=7, wrap=True)
-    fig.tight_layout()
-    path = Path(path)
-    with atomic_output(path) as tmp:
-        fig.savefig(tmp, dpi=110, format=path.suffix.lstrip(".") or "png")
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=110)
 
 
 def plot_corner(samples: pd.DataFrame, path: str | Path, columns=None) -> Path:
@@ -148,12 +150,7 @@ def plot_corner(samples: pd.DataFrame, path: str | Path, columns=None) -> Path:
                 ax.set_yticklabels([])
             ax.tick_params(labelsize=6)
     fig.suptitle(f"posterior ({len(samples)} samples)")
-    fig.tight_layout()
-    path = Path(path)
-    with atomic_output(path) as tmp:
-        fig.savefig(tmp, dpi=100, format=path.suffix.lstrip(".") or "png")
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=100)
 
 
 def plot_fit(t_s, mag, model_mag, path: str | Path, summary: dict | None = None) -> Path:
@@ -181,9 +178,4 @@ def plot_fit(t_s, mag, model_mag, path: str | Path, summary: dict | None = None)
     ax2.axhline(0, color="k", lw=0.5)
     ax2.set_ylabel("data − model")
     ax2.set_xlabel("time from the fit epoch (s)")
-    fig.tight_layout()
-    path = Path(path)
-    with atomic_output(path) as tmp:
-        fig.savefig(tmp, dpi=110, format=path.suffix.lstrip(".") or "png")
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=110)

@@ -398,19 +398,7 @@ def render(
     if len(idx):
         intensity[idx] = _render_rows(scene, geo, idx, precision, plan, progress)
 
-    flux = photometry.flux_w_m2(intensity, geo.irradiance_w_m2, geo.range_m)
-    out = pd.DataFrame(
-        {
-            "utc": table["utc"],
-            "t_s": table["t_s"],
-            "mag": photometry.magnitude(flux),
-            "flux_w_m2": flux,
-            "phase_angle_deg": geo.phase_angle_deg,
-            "range_m": geo.range_m,
-            "exposure_s": geo.exposure_s,
-            "visible": geo.visible,
-        }
-    )
+    out = lightcurve_table(table, geo, intensity)
     out.attrs.update(
         {
             "frame": table.attrs.get("frame", "unknown"),
@@ -421,6 +409,29 @@ def render(
         }
     )
     return out
+
+
+def lightcurve_table(
+    table: pd.DataFrame, geo: GeometryArrays, intensity_m2_sr: np.ndarray, **extra
+) -> pd.DataFrame:
+    """The light-curve table of a geometry table and per-row I/E (m² sr⁻¹, NaN: not rendered).
+
+    ``extra`` columns (arrays of one value per row) follow the standard ones.
+    """
+    flux = photometry.flux_w_m2(intensity_m2_sr, geo.irradiance_w_m2, geo.range_m)
+    return pd.DataFrame(
+        {
+            "utc": table["utc"],
+            "t_s": table["t_s"],
+            "mag": photometry.magnitude(flux),
+            "flux_w_m2": flux,
+            "phase_angle_deg": geo.phase_angle_deg,
+            "range_m": geo.range_m,
+            "exposure_s": geo.exposure_s,
+            "visible": geo.visible,
+            **extra,
+        }
+    )
 
 
 def _render_rows(

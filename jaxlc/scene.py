@@ -58,11 +58,17 @@ SHIPPED_MESHES = Path(__file__).resolve().parent.parent / "meshes"
 
 
 class _Section:
-    """Typed access to one TOML table that remembers which keys were used."""
+    """Typed access to one TOML table that remembers which keys were used.
+
+    ``error`` is the exception raised for bad input (subclasses for other
+    file kinds, e.g. dataset configs, set their own).
+    """
+
+    error: type[Exception] = SceneError
 
     def __init__(self, data: dict, where: str):
         if not isinstance(data, dict):
-            raise SceneError(f"{where} must be a table, got {data!r}")
+            raise self.error(f"{where} must be a table, got {data!r}")
         self.data, self.where, self.used = data, where, set()
 
     def get(self, key, kind, *, default=..., check=None, what=""):
@@ -107,7 +113,7 @@ class _Section:
             close = difflib.get_close_matches(key, sorted(self.used), n=1)
             hint = f"; did you mean {close[0]!r}?" if close else ""
             allowed = ", ".join(sorted(self.used))
-            raise SceneError(f"{self.where}: unknown key {key!r}{hint} (allowed here: {allowed})")
+            raise self.error(f"{self.where}: unknown key {key!r}{hint} (allowed here: {allowed})")
 
 
 def _show(value):
