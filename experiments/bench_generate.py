@@ -10,10 +10,11 @@ B. whole runs into a fresh Zarr store: in-process (``workers=0``) and on a
    local Dask cluster with 1 and 2 worker processes — wall time of
    ``generate()`` including cluster start-up, compilation in every worker and
    writing, so light curves/s = count / wall time;
-C. the same mix with motion blur capped at ``--caps`` sub-exposures per
-   exposure (2 workers; 1 = no blur), and the error against B on the very
-   same curves (same seed): median / 95th percentile / max |Δm| over visible
-   samples, for all curves and per class.
+C. the error of the automatic choice (B) and of the same mix with motion
+   blur capped at ``--caps`` sub-exposures per exposure (2 workers; 1 = no
+   blur), against a dense reference of ``--dense`` sub-exposures for every
+   curve, on the very same curves (same seed): median / 95th percentile /
+   max |Δm| over visible samples, for all curves and per class.
 
 Rates are count / wall time of ``generate()``, and over the shards after the
 first one finishes ("steady": without start-up and compilation).
@@ -56,9 +57,12 @@ import dataclasses as dc, json, sys, time
 import jaxlc.dataset as d
 cfg = d.load_config(sys.argv[1])
 cap = int(sys.argv[5])
-if cap:  # cap the automatic sub-exposure count of every class
+if cap > 0:  # cap the automatic sub-exposure count of every class
     cfg = dc.replace(cfg, classes=tuple(
         dc.replace(c, render=dc.replace(c.render, max_subsamples=cap)) for c in cfg.classes))
+elif cap < 0:  # a fixed count for every curve: the dense reference
+    cfg = dc.replace(cfg, classes=tuple(
+        dc.replace(c, render=dc.replace(c.render, subsamples=-cap)) for c in cfg.classes))
 stamps = []
 t0 = time.perf_counter()
 ds = d.generate(cfg, sys.argv[2], workers=int(sys.argv[3]), count=int(sys.argv[4]),
@@ -202,6 +206,9 @@ def main(argv=None) -> int:
     parser.add_argument("--count", type=int, default=1000, help="curves per run of B and C")
     parser.add_argument("--caps", default="8,1", help="sub-exposure caps of table C")
     parser.add_argument("--workers", default="0,1,2", help="worker counts of table B")
+    parser.add_argument(
+        "--dense", type=int, default=64, help="sub-exposures of the reference of table C"
+    )
     parser.add_argument("--quick", action="store_true", help="a few curves (smoke test)")
     parser.add_argument("--out", type=Path, default=HERE / "results" / "bench_generate.csv")
     args = parser.parse_args(argv)
@@ -210,13 +217,17 @@ def main(argv=None) -> int:
     rows = class_rates(config, min(count, 200), repeats=1 if args.quick else 2)
 
     caps = [int(c) for c in args.caps.split(",") if c.strip()]
-    variants = [(0, int(w)) for w in args.workers.split(",")] + [(c, 2) for c in caps]
+    variants = (
+        [(0, int(w)) for w in args.workers.split(",")] + [(c, 2) for c in caps] + [(-args.dense, 2)]
+    )
     with tempfile.TemporaryDirectory(prefix="bench_generate_") as tmp:
         stores = {}
         for cap, workers in variants:
             store = Path(tmp) / f"cap{cap}_workers{workers}.zarr"
             seconds, curves, renders, steady, load = run(store, workers, count, cap)
             stores[(cap, workers)] = store
+            if cap < 0:  # the reference: only its errors are reported
+                continue
             rows.append(
                 dict(
                     table="C" if cap else "B",
@@ -238,18 +249,21 @@ def main(argv=None) -> int:
                 flush=True,
             )
         auto = [k for k in stores if k[0] == 0]
-        ref = jaxlc.dataset.open(stores[auto[-1]])
-        ref_mag = ref.load("mag")
+        auto_mag = jaxlc.dataset.open(stores[auto[-1]]).load("mag")
         same = [
-            bool(np.array_equal(ref_mag, jaxlc.dataset.open(stores[k]).load("mag"), equal_nan=True))
+            bool(
+                np.array_equal(auto_mag, jaxlc.dataset.open(stores[k]).load("mag"), equal_nan=True)
+            )
             for k in auto
         ]
-        for cap in caps:
-            capped = jaxlc.dataset.open(stores[(cap, 2)])
+        ref = jaxlc.dataset.open(stores[(-args.dense, 2)])
+        for cap in [0, *caps]:
+            capped = jaxlc.dataset.open(stores[(cap, 2)] if cap else stores[auto[-1]])
             per_class = errors(ref, capped)
-            at = next(
-                i for i, r in enumerate(rows) if r["variant"] == f"blur ≤ {cap} sub-exposure(s)"
-            )
+            label = f"blur ≤ {cap} sub-exposure(s)" if cap else f"auto vs {args.dense}"
+            if not cap:
+                rows.append(dict(table="C", variant=label, workers=auto[-1][1]))
+            at = next(i for i, r in enumerate(rows) if r["variant"] == label)
             rows[at].update({k: v for k, v in per_class[0].items() if k != "variant"})
             subs = capped.labels.groupby("class", observed=True)["subsamples"].mean()
             for j, e in enumerate(per_class[1:], 1):

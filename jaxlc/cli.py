@@ -643,17 +643,22 @@ def fit(
     geometry: Annotated[Path, typer.Option("--geometry", help="Geometry table of the same rows.")],
     output: Annotated[Path, typer.Option("-o", "--output", help="Output folder.")],
     starts: Annotated[int, typer.Option(help="Multi-start LM solves (one vmap).")] = 1024,
-    walkers: Annotated[int, typer.Option(help="emcee walkers.")] = 16,
+    walkers: Annotated[int, typer.Option(help="emcee walkers (≥ 12).")] = 12,
     max_steps: Annotated[int, typer.Option(help="emcee step cap.")] = 6000,
     min_tau: Annotated[float, typer.Option(help="Chain length target in τ.")] = 50.0,
-    mcmc_modes: Annotated[int, typer.Option(help="Modes sampled (within Δχ² < 10).")] = 2,
+    mcmc_modes: Annotated[int, typer.Option(help="Modes sampled (within Δχ² < 10).")] = 4,
     period_s: Annotated[
         float | None, typer.Option(help="Seed period instead of the periodogram's.")
     ] = None,
     seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
 ):
-    """Fit the spin state (pole, period, phase, brightness, noise) to a light curve."""
+    """Fit the spin state (pole, period, phase, brightness, noise) to a light curve.
+
+    Compiled solvers are kept in JAX's persistent cache ($JAXLC_XLA_CACHE,
+    default ~/.cache/jaxlc/xla; "off" disables it), so later fits start faster.
+    """
     import jaxlc
+    from jaxlc import compile_cache
     from jaxlc.fit import fit_spin
     from jaxlc.mcmc import FitSettings
 
@@ -670,6 +675,7 @@ def fit(
     sc = jaxlc.load_scene(scene)
     lc = jaxlc.read_lightcurve(lightcurve)
     geo = jaxlc.read_geometry(geometry)
+    compile_cache.enable()
     result = fit_spin(
         sc, lc, geo, settings, out_dir=output, log=lambda m: console.print(m, highlight=False)
     )

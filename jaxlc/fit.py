@@ -6,7 +6,9 @@ Output folder:
   ``phase_deg`` (at ``epoch_utc``), ``dmag``, ``noise_mag`` of the best mode
   with 50 %/90 % intervals, the pole's credible radii, every mode found,
   the periodogram, diagnostics (acceptance, τ, chain length in τ) and timings;
-* ``samples.parquet`` — posterior samples of every sampled mode (user units);
+* ``samples.parquet`` — posterior samples of every sampled mode (user units),
+  with ``weight`` (the mode's probability from its Laplace evidence, spread
+  over its samples: weighted, the table is the mixture posterior);
 * ``corner.png`` — pairwise posterior of the best mode;
 * ``fit.png`` — the data with the MAP model and residuals.
 """
@@ -78,6 +80,7 @@ def fit_spin(
         n_starts=settings.n_starts,
         search_samples=settings.search_samples,
         search_steps=settings.search_steps,
+        refine_steps=settings.refine_steps,
         subsamples=settings.subsamples,
         rng=rng,
         log=log,
@@ -104,6 +107,10 @@ def fit_spin(
         log(f"emcee around mode {i} (Δχ² = {modes[i].chi2 - best_chi2:.1f})")
         runs[i] = mcmc.run_emcee(model, data, modes[i], settings, rng, log=log)
         tables.append(mcmc.samples_table(runs[i]["chain"], runs[i]["log_prob"], i))
+    weights = mcmc.mode_weights([runs[i]["log_evidence"] for i in sampled])
+    for i, w, table in zip(sampled, weights, tables, strict=True):
+        runs[i]["weight"] = float(w)
+        table["weight"] = w / len(table)  # sums to 1 over all samples
     samples = pd.concat(tables, ignore_index=True)
     timings["mcmc_s"] = time.perf_counter() - t2
     timings["total_s"] = time.perf_counter() - t0
@@ -113,8 +120,10 @@ def fit_spin(
         row = m.describe(best_chi2)
         if i in runs:
             r = runs[i]
+            row["weight"] = r["weight"]
             row["mcmc"] = {
                 "intervals": mcmc.interval_summary(samples[samples["mode"] == i]),
+                "log_evidence": r["log_evidence"],
                 "acceptance": r["acceptance"],
                 "tau": dict(zip(inf.MC_NAMES, map(float, r["tau"]), strict=True)),
                 "steps": r["steps"],

@@ -196,14 +196,11 @@ def _use_compilation_cache() -> None:
     Done here rather than by JAX's own environment variable because the
     worker may have imported JAX before its environment was set.
     """
-    path = os.environ.get(_CACHE_ENV)
-    if not path:
-        return
-    import jax
+    from jaxlc import compile_cache
 
-    if jax.config.jax_compilation_cache_dir is None:
-        jax.config.update("jax_compilation_cache_dir", path)
-        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
+    path = os.environ.get(_CACHE_ENV)
+    if path:
+        compile_cache.enable(path)
 
 
 def run_shard(config: DatasetConfig, shard: int, store: str) -> tuple[int, int]:

@@ -8,9 +8,11 @@
 2. multi-start Levenberg–Marquardt (:func:`jaxlc.inference.multistart`) →
    distinct modes (mirror poles, period aliases), each with its χ²;
 3. emcee (``vectorize=True`` on a jitted, vmapped log-probability) started in
-   a small ball around each mode within Δχ² < 10 of the best, run in blocks
-   until the chain is ≥ 50 integrated autocorrelation times τ long (or
-   ``max_steps``);
+   the Laplace ball of each mode within Δχ² < 10 of the best, with a mixture
+   of an independence proposal (multivariate t fitted to the posterior in a
+   short adaptation stage, :class:`IndependenceMove`) and emcee's
+   differential-evolution move, run in blocks until the kept chain is ≥ 50
+   integrated autocorrelation times τ long (or ``max_steps``);
 4. summary (medians, 50 % and 90 % intervals, pole credible radii), samples
    (Parquet), a corner plot and the data with the fitted model.
 
@@ -26,6 +28,7 @@ import dataclasses
 import math
 import time
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -44,13 +47,15 @@ class FitSettings:
     """Knobs of :func:`fit_spin` (defaults meet the issue's ≥ 1,000 starts and ≥ 50 τ)."""
 
     n_starts: int = 1024
-    search_samples: int = 100
-    search_steps: int = 15
-    walkers: int = 16
+    search_samples: int = 64
+    search_steps: int = 10
+    refine_steps: int = 12
+    walkers: int = 12
     min_tau: float = 50.0
     max_steps: int = 6000
-    block_steps: int = 250
-    mcmc_modes: int = 2
+    adapt_steps: int = 40
+    block_steps: int = 50
+    mcmc_modes: int = 4
     mode_delta_chi2: float = 10.0
     subsamples: int = 1
     seed: int = 0
@@ -63,6 +68,23 @@ class FitSettings:
             raise JaxlcError(f"walkers = {self.walkers} must be ≥ {2 * inf.N_MC} (2 × parameters)")
         if self.max_steps < self.block_steps:
             raise JaxlcError(f"max_steps = {self.max_steps} must be ≥ {self.block_steps}")
+        if self.adapt_steps < 10:
+            raise JaxlcError(f"adapt_steps = {self.adapt_steps} must be ≥ 10")
+
+
+@eqx.filter_jit
+def _log_prob(model: inf.SpinModel, arrays, mag, err2, bounds, thetas):
+    """(W,) log-posterior of (W, 6) MCMC coordinates (compiled once per model layout)."""
+
+    def one(theta):
+        lo, hi = bounds[0], bounds[1]
+        inside = (jnp.abs(theta[1]) <= 1) & jnp.all(theta[2:] >= lo) & jnp.all(theta[2:] <= hi)
+        m = model.magnitudes(inf.mc_to_lm(theta), *arrays)
+        var = err2 + jnp.exp(2 * theta[5])
+        ll = -0.5 * jnp.sum((m - mag) ** 2 / var + jnp.log(2 * jnp.pi * var))
+        return jnp.where(inside & jnp.isfinite(ll), ll, -jnp.inf)
+
+    return jax.vmap(one)(thetas)
 
 
 def log_prob_fn(model: inf.SpinModel, data: inf.FitData, ln_period_center: float):
@@ -70,42 +92,35 @@ def log_prob_fn(model: inf.SpinModel, data: inf.FitData, ln_period_center: float
     arrays = inf.data_arrays(data)
     mag = jnp.asarray(inf.soft_clip(data.mag, data.limit_mag), jnp.float32)
     err2 = jnp.asarray(data.mag_err**2, jnp.float32)
-    lnp_lo = ln_period_center - math.log(PERIOD_PRIOR_FACTOR)
-    lnp_hi = ln_period_center + math.log(PERIOD_PRIOR_FACTOR)
-    lo_s, hi_s = (math.log(b) for b in NOISE_BOUNDS_MAG)
-
-    def one(theta):
-        theta = theta.astype(jnp.float32)
-        inside = (
-            (jnp.abs(theta[1]) <= 1)
-            & (theta[2] >= lnp_lo)
-            & (theta[2] <= lnp_hi)
-            & (theta[4] >= DMAG_BOUNDS[0])
-            & (theta[4] <= DMAG_BOUNDS[1])
-            & (theta[5] >= lo_s)
-            & (theta[5] <= hi_s)
-        )
-        m = model.magnitudes(inf.mc_to_lm(theta), *arrays)
-        var = err2 + jnp.exp(2 * theta[5])
-        ll = -0.5 * jnp.sum((m - mag) ** 2 / var + jnp.log(2 * jnp.pi * var))
-        return jnp.where(inside & jnp.isfinite(ll), ll, -jnp.inf)
-
-    f = jax.jit(jax.vmap(one))
+    lnp = (
+        ln_period_center - math.log(PERIOD_PRIOR_FACTOR),
+        ln_period_center + math.log(PERIOD_PRIOR_FACTOR),
+    )
+    noise = tuple(math.log(b) for b in NOISE_BOUNDS_MAG)
+    # bounds of coordinates 2… 5: ln P, φ (unbounded: periodic), Δm, ln σ
+    bounds = jnp.asarray(
+        [[lnp[0], -np.inf, DMAG_BOUNDS[0], noise[0]], [lnp[1], np.inf, DMAG_BOUNDS[1], noise[1]]],
+        jnp.float32,
+    )
 
     def log_prob(thetas: np.ndarray) -> np.ndarray:
-        return np.asarray(f(jnp.asarray(thetas, jnp.float32)), np.float64)
+        out = _log_prob(model, arrays, mag, err2, bounds, jnp.asarray(thetas, jnp.float32))
+        return np.asarray(out, np.float64)
 
     return log_prob
 
 
 def initial_ball(
     model: inf.SpinModel, data: inf.FitData, mode: inf.Mode, walkers: int, rng: np.random.Generator
-) -> np.ndarray:
-    """(walkers, 6) MCMC starts drawn from the Laplace approximation at a mode.
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """MCMC starts drawn from the Laplace approximation at a mode.
 
     Covariance σ² (JᵀJ)⁻¹ of the first five coordinates from the model's
-    Jacobian (σ: the mode's noise, or the data errors); ln σ gets 1/√(2N).
-    Starting in equilibrium keeps the burn-in, and τ, short.
+    Jacobian (σ: the mode's noise, or the data errors); ln σ gets 1/(2N).
+    Starting in equilibrium keeps the burn-in short.
+
+    Returns:
+        (walkers, 6) starts, the (6,) centre and the (6, 6) covariance.
     """
     noise = max(mode.noise_mag, 2 * NOISE_BOUNDS_MAG[0])
     centre = inf.lm_to_mc(mode.theta_lm, noise)
@@ -119,16 +134,62 @@ def initial_ball(
     jac = np.asarray(jax.jacfwd(mags)(jnp.asarray(centre[:5], jnp.float32)), np.float64)
     jw = jac / sigma[:, None]
     fisher = jw.T @ jw + np.diag([1e-6, 1e-6, 1e-12, 1e-6, 1e-6])
+    cov = np.zeros((inf.N_MC, inf.N_MC))
     try:
-        cov = np.linalg.inv(fisher)
-        chol = np.linalg.cholesky(0.5 * (cov + cov.T))
+        c5 = np.linalg.inv(fisher)
+        np.linalg.cholesky(0.5 * (c5 + c5.T))
+        cov[:5, :5] = 0.5 * (c5 + c5.T)
     except np.linalg.LinAlgError:
-        chol = np.diag([0.01, 0.005, 1e-5, 0.01, 0.005])
-    p0 = np.empty((walkers, inf.N_MC))
-    p0[:, :5] = centre[:5] + rng.standard_normal((walkers, 5)) @ chol.T
-    p0[:, 5] = centre[5] + rng.standard_normal(walkers) / math.sqrt(2 * data.n)
+        cov[:5, :5] = np.diag([0.01, 0.005, 1e-5, 0.01, 0.005]) ** 2
+    cov[5, 5] = 1.0 / (2 * data.n)
+    p0 = centre + rng.standard_normal((walkers, inf.N_MC)) @ np.linalg.cholesky(cov).T
     p0[:, 1] = np.clip(p0[:, 1], -0.999999, 0.999999)
-    return p0
+    return p0, centre, cov
+
+
+class IndependenceMove:
+    """Metropolis–Hastings move proposing from a fixed multivariate t (ν = 5).
+
+    The proposal is the Gaussian approximation of the posterior (centre and
+    covariance, inflated 1.2×) with heavy tails; it does not depend on the
+    walker's position, so a near-Gaussian posterior is sampled with τ of a
+    few steps, where the stretch move needs tens. Used in a mixture with
+    emcee's differential-evolution move, which handles what the t misses.
+    """
+
+    def __init__(self, mean: np.ndarray, cov: np.ndarray, df: float = 5.0, inflate: float = 1.2):
+        import emcee
+
+        self.mean = np.asarray(mean, np.float64)
+        self.chol = np.linalg.cholesky(cov * inflate**2)
+        self.df = df
+        self.move = emcee.moves.MHMove(self._propose)
+
+    def log_q(self, x: np.ndarray) -> np.ndarray:
+        z = np.linalg.solve(self.chol, (x - self.mean).T).T
+        return -0.5 * (self.df + x.shape[1]) * np.log1p(np.sum(z**2, axis=1) / self.df)
+
+    def _propose(self, coords: np.ndarray, random) -> tuple[np.ndarray, np.ndarray]:
+        n, d = coords.shape
+        w = np.sqrt(self.df / random.chisquare(self.df, size=n))
+        q = self.mean + (random.randn(n, d) @ self.chol.T) * w[:, None]
+        return q, self.log_q(coords) - self.log_q(q)
+
+
+def _moves(mean, cov):
+    import emcee
+
+    return [(IndependenceMove(mean, cov).move, 0.7), (emcee.moves.DEMove(), 0.3)]
+
+
+def _robust_cov(x: np.ndarray, fallback: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    mean = np.mean(x, axis=0)
+    cov = np.cov(x, rowvar=False)
+    try:
+        np.linalg.cholesky(cov)
+    except np.linalg.LinAlgError:
+        return mean, fallback
+    return mean, cov
 
 
 def run_emcee(
@@ -139,55 +200,92 @@ def run_emcee(
     rng: np.random.Generator,
     log=None,
 ) -> dict:
-    """Sample around one mode until ≥ ``min_tau`` τ (or ``max_steps``).
+    """Sample around one mode until the kept chain is ≥ ``min_tau`` τ long (or ``max_steps``).
+
+    Two stages: an adaptation stage of ``adapt_steps`` steps from the Laplace
+    ball with the Laplace proposal (:class:`IndependenceMove` + DE), discarded;
+    then the proposal refitted to the adaptation's second half, fixed, and
+    blocks of ``block_steps`` until the kept chain (all of stage two) is long
+    enough. τ is estimated on the kept chain only.
 
     Returns:
         dict with ``chain`` (steps, walkers, 6), ``log_prob`` (steps, walkers),
-        ``tau`` (6,), ``steps``, ``burn``, ``acceptance``, ``chain_length_tau``,
-        ``converged``, ``seconds``.
+        ``log_evidence`` (:func:`laplace_log_evidence`),
+        ``tau`` (6,), ``steps`` (kept), ``burn`` (discarded), ``acceptance``,
+        ``chain_length_tau``, ``converged``, ``seconds``.
     """
     import emcee
 
     log = log or (lambda msg: None)
     lp = log_prob_fn(model, data, float(mode.theta_lm[3]))
-    p0 = initial_ball(model, data, mode, settings.walkers, rng)
+    p0, centre, cov = initial_ball(model, data, mode, settings.walkers, rng)
     if not np.all(np.isfinite(lp(p0))):
         raise JaxlcError("emcee: the starting ball has points outside the prior (report this)")
-    sampler = emcee.EnsembleSampler(
-        settings.walkers,
-        inf.N_MC,
-        lp,
-        vectorize=True,
-    )
-    # reproducible: emcee draws from its own RandomState
-    sampler.random_state = np.random.RandomState(int(rng.integers(2**31))).get_state()
+    seed = int(rng.integers(2**31))
+
+    def sampler(mean, c, stage):
+        s = emcee.EnsembleSampler(
+            settings.walkers, inf.N_MC, lp, vectorize=True, moves=_moves(mean, c)
+        )
+        # reproducible: emcee draws from its own RandomState
+        s.random_state = np.random.RandomState(seed + stage).get_state()
+        return s
+
     t0 = time.perf_counter()
-    state = p0
+    adapt = sampler(centre, cov, 0)
+    state = adapt.run_mcmc(p0, settings.adapt_steps, progress=False)
+    half = adapt.get_chain(discard=settings.adapt_steps // 2, flat=True)
+    mean, cov2 = _robust_cov(half, cov)
+    log(
+        f"  emcee: adaptation {settings.adapt_steps} steps, acceptance "
+        f"{np.mean(adapt.acceptance_fraction):.2f}"
+    )
+    main = sampler(mean, cov2, 1)
     tau = np.full(inf.N_MC, np.inf)
     steps = 0
     while steps < settings.max_steps:
-        state = sampler.run_mcmc(state, settings.block_steps, progress=False)
+        state = main.run_mcmc(state, settings.block_steps, progress=False)
         steps += settings.block_steps
-        # τ from the second half (the first half is burn-in)
-        tau = emcee.autocorr.integrated_time(
-            sampler.get_chain(discard=steps // 2), tol=0, quiet=True
-        )
+        tau = np.maximum(emcee.autocorr.integrated_time(main.get_chain(), tol=0, quiet=True), 1.0)
         length = steps / np.max(tau)
-        log(f"  emcee: {steps} steps, τ = {np.round(tau, 1)}, length {length:.0f} τ")
-        if length >= settings.min_tau and steps // 2 >= 10 * np.max(tau):
+        log(f"  emcee: {steps} steps kept, τ = {np.round(tau, 1)}, length {length:.0f} τ")
+        if length >= settings.min_tau:
             break
-    burn = steps // 2
+    chain, log_prob = main.get_chain(), main.get_log_prob()
     return {
-        "chain": sampler.get_chain(discard=burn),
-        "log_prob": sampler.get_log_prob(discard=burn),
+        "chain": chain,
+        "log_prob": log_prob,
+        "log_evidence": laplace_log_evidence(chain.reshape(-1, inf.N_MC), log_prob.reshape(-1)),
         "tau": tau,
         "steps": steps,
-        "burn": burn,
-        "acceptance": float(np.mean(sampler.acceptance_fraction)),
+        "burn": settings.adapt_steps,
+        "acceptance": float(np.mean(main.acceptance_fraction)),
         "chain_length_tau": float(steps / np.max(tau)),
         "converged": bool(steps / np.max(tau) >= settings.min_tau),
         "seconds": time.perf_counter() - t0,
     }
+
+
+def laplace_log_evidence(samples: np.ndarray, log_prob: np.ndarray) -> float:
+    """ln Z of one mode from its samples, treating the mode as Gaussian.
+
+    ln Z ≈ ln p(θ̂) + ½ ln det(2π Σ) with Σ the samples' covariance and
+    ln p(θ̂) = E[ln p] + d/2 (exact for a Gaussian). Mode weights are
+    exp(ln Z) normalised over the sampled modes.
+    """
+    d = samples.shape[1]
+    ok = np.isfinite(log_prob)
+    sign, logdet = np.linalg.slogdet(2 * np.pi * np.cov(samples[ok], rowvar=False))
+    if sign <= 0 or not np.any(ok):
+        return float("-inf")
+    return float(np.mean(log_prob[ok]) + 0.5 * d + 0.5 * logdet)
+
+
+def mode_weights(log_evidence) -> np.ndarray:
+    """Normalised posterior probabilities of the sampled modes."""
+    z = np.asarray(log_evidence, np.float64)
+    w = np.exp(z - np.max(z))
+    return w / np.sum(w)
 
 
 def samples_table(chain: np.ndarray, log_prob: np.ndarray, mode_id: int) -> pd.DataFrame:

@@ -191,7 +191,9 @@ def test_model_at_the_truth_reproduces_render(cubesat_case):
     theta = jnp.asarray([*u, math.log(a.period_s), phase, 0.0], jnp.float32)
     m = np.asarray(spin_model(scene, data.limit_mag).magnitudes(theta, *data_arrays(data)))
     bright = data.mag < data.limit_mag - 1
-    assert np.max(np.abs(m[bright] - data.mag[bright])) < 2e-3
+    d = np.abs(m[bright] - data.mag[bright])
+    # float32 noise only: a systematic offset of a few mmag biases the period by σ's
+    assert np.max(d) < 1e-3 and np.median(d) < 1e-4
 
 
 def test_fit_data_needs_matching_geometry(cubesat_case):
@@ -219,9 +221,15 @@ def test_fit_recovers_spin_state(cubesat_case, tmp_path):
             math.sin(math.radians(a.pole_dec_deg)),
         ]
     )
-    ra, dec = math.radians(r["pole_ra_deg"]), math.radians(r["pole_dec_deg"])
-    u_fit = np.array([math.cos(dec) * math.cos(ra), math.cos(dec) * math.sin(ra), math.sin(dec)])
-    assert math.degrees(math.acos(min(1.0, float(u_true @ u_fit)))) < 3.0
+    # A 3U CubeSat's symmetry gives other poles the same light curve (Δχ² ≈ 0):
+    # the truth must be one of the equally good modes, not necessarily the first.
+    close = []
+    for m in r["modes"]:
+        ra, dec = math.radians(m["pole_ra_deg"]), math.radians(m["pole_dec_deg"])
+        u = np.array([math.cos(dec) * math.cos(ra), math.cos(dec) * math.sin(ra), math.sin(dec)])
+        if m["delta_chi2"] < 1.0:
+            close.append(math.degrees(math.acos(min(1.0, float(u_true @ u)))))
+    assert min(close) < 3.0
     assert r["noise_mag"] == pytest.approx(0.05, rel=0.15)
     summary = json.loads((tmp_path / "summary.json").read_text())
     for key in ("period_s", "pole_ra_deg", "pole_dec_deg", "modes", "diagnostics", "intervals"):
@@ -229,3 +237,65 @@ def test_fit_recovers_spin_state(cubesat_case, tmp_path):
     assert summary["diagnostics"]["acceptance"] > 0.05
     for f in ("samples.parquet", "corner.png", "fit.png"):
         assert (tmp_path / f).stat().st_size > 0
+
+
+def test_independence_move_samples_its_target():
+    """The t proposal's Hastings factor is right: the chain has the target's
+    moments, not the proposal's (target and proposal differ on purpose)."""
+    import emcee
+
+    from jaxlc.mcmc import IndependenceMove
+
+    mean, sd = np.array([1.0, -1.0]), np.array([0.5, 2.0])
+
+    def log_prob(x):
+        return -0.5 * np.sum(((x - mean) / sd) ** 2, axis=1)
+
+    move = IndependenceMove(np.array([0.7, -0.5]), np.diag([0.6, 2.5]) ** 2)
+    sampler = emcee.EnsembleSampler(16, 2, log_prob, vectorize=True, moves=[(move.move, 1.0)])
+    sampler.random_state = np.random.RandomState(5).get_state()
+    sampler.run_mcmc(np.random.default_rng(5).normal(size=(16, 2)), 3000, progress=False)
+    x = sampler.get_chain(discard=200, flat=True)
+    np.testing.assert_allclose(x.mean(axis=0), mean, atol=0.06)
+    np.testing.assert_allclose(x.std(axis=0), sd, rtol=0.05)
+
+
+def test_laplace_log_evidence_of_a_gaussian():
+    """ln ∫ exp(ln N(x; μ, Σ) + c) dx = c, from samples of the Gaussian."""
+    from jaxlc.mcmc import laplace_log_evidence, mode_weights
+
+    rng = np.random.default_rng(2)
+    a = rng.normal(size=(4, 4))
+    cov = a @ a.T + 0.5 * np.eye(4)
+    x = rng.multivariate_normal(np.ones(4), cov, size=40000)
+    inv = np.linalg.inv(cov)
+    d = x - 1.0
+    logn = -0.5 * np.einsum("ij,jk,ik->i", d, inv, d) - 0.5 * np.linalg.slogdet(2 * np.pi * cov)[1]
+    assert laplace_log_evidence(x, logn + 2.0) == pytest.approx(2.0, abs=0.05)
+    np.testing.assert_allclose(mode_weights([0.0, np.log(3.0)]), [0.25, 0.75])
+
+
+def test_model_matches_render_on_faint_samples():
+    """Faint samples above the clip (2–4 mag below the median) carry no floor bias:
+    the intensity floor that keeps unlit samples finite must stay far below them."""
+    import jax.numpy as jnp
+
+    from jaxlc.attitude import phase_at_offset_deg, pole_vector
+    from jaxlc.inference import data_arrays, fit_data, spin_model
+    from jaxlc.plan import RenderOptions
+
+    scene = jaxlc.load_scene("experiments/scenes/s5_cubesat.toml")
+    geo = jaxlc.synthetic_geometry(
+        duration_s=600, step_s=1.0, phase_start_deg=30, phase_end_deg=150, tilt_deg=40
+    )
+    data = fit_data(jaxlc.render(scene, geo, options=RenderOptions(blur="off")), geo)
+    a = scene.attitude
+    off = (data.epoch_utc - a.epoch_utc).total_seconds()
+    phase = math.radians(phase_at_offset_deg(a.phase_deg, a.period_s, off))
+    u = np.asarray(pole_vector(math.radians(a.pole_ra_deg), math.radians(a.pole_dec_deg)))
+    theta = jnp.asarray([*u, math.log(a.period_s), phase, 0.0], jnp.float32)
+    m = np.asarray(spin_model(scene, data.limit_mag).magnitudes(theta, *data_arrays(data)))
+    med = np.median(data.mag)
+    faint = (data.mag > med + 2) & (data.mag < data.limit_mag - 1)
+    assert np.count_nonzero(faint) >= 20  # the case must have faint samples to test
+    assert np.max(np.abs(m[faint] - data.mag[faint])) < 1e-3
