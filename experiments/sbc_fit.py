@@ -193,7 +193,14 @@ def main(argv=None) -> pd.DataFrame:
     a = ap.parse_args(argv)
     scene = jaxlc.load_scene(REPO / "experiments" / "scenes" / f"{a.scene}.toml")
     geo = pass_geometry()
-    settings = FitSettings(n_starts=a.starts, max_steps=a.max_steps, mcmc_modes=a.modes)
+    # the search range is the prior the cases are drawn from
+    settings = FitSettings(
+        n_starts=a.starts,
+        max_steps=a.max_steps,
+        mcmc_modes=a.modes,
+        min_period_s=5.0,
+        max_period_s=200.0,
+    )
     out = Path(a.out)
     rows = []
     for k in range(a.cases):

@@ -650,6 +650,12 @@ def fit(
     period_s: Annotated[
         float | None, typer.Option(help="Seed period instead of the periodogram's.")
     ] = None,
+    min_period_s: Annotated[
+        float | None, typer.Option(help="Shortest period searched (default 2.5 steps).")
+    ] = None,
+    max_period_s: Annotated[
+        float | None, typer.Option(help="Longest period searched (default span / 2).")
+    ] = None,
     seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
 ):
     """Fit the spin state (pole, period, phase, brightness, noise) to a light curve.
@@ -670,6 +676,8 @@ def fit(
         min_tau=min_tau,
         mcmc_modes=mcmc_modes,
         period_s=period_s,
+        min_period_s=min_period_s,
+        max_period_s=max_period_s,
         seed=seed,
     )
     sc = jaxlc.load_scene(scene)

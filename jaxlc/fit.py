@@ -51,7 +51,7 @@ def fit_spin(
     Returns:
         The summary dict (also ``summary.json``) with ``samples`` (DataFrame) added.
     """
-    from jaxlc.period import analyse_period
+    from jaxlc.period import analyse_period, candidate_periods
 
     settings = settings or mcmc.FitSettings()
     log = log or (lambda msg: None)
@@ -63,8 +63,26 @@ def fit_spin(
         seeds = [settings.period_s]
         period_info = {"given_period_s": settings.period_s}
     else:
-        pr = analyse_period(data.t_s, data.mag)
-        seeds = [k * pr.ls_period_s for k in (1, 2, 3, 4)]
+        pr = analyse_period(
+            data.t_s,
+            data.mag,
+            min_period_s=settings.min_period_s,
+            max_period_s=settings.max_period_s,
+        )
+        lo = settings.min_period_s or 2.5 * float(np.median(np.diff(np.sort(data.t_s))))
+        hi = settings.max_period_s or float(np.ptp(data.t_s)) / 2
+        seeds = _distinct(
+            [k * pr.ls_period_s for k in (1, 2, 3, 4)]
+            + [
+                k * p
+                for p in candidate_periods(
+                    data.t_s, inf.soft_clip(data.mag, data.limit_mag), lo, hi
+                )
+                for k in (1, 2)
+            ],
+            lo,
+            hi,
+        )
         period_info = pr.summary()
         log(
             f"periodogram: peak {pr.ls_period_s:.4g} s (FAP {pr.false_alarm_probability:.1e}); "
@@ -169,6 +187,16 @@ def fit_spin(
         write_outputs(Path(out_dir), summary, samples, model, data, modes[0])
     summary["samples"] = samples
     return summary
+
+
+def _distinct(periods, lo: float, hi: float, tol: float = 0.01) -> list[float]:
+    """Periods within [lo, 2 hi] (a multiple of the longest searched may be the spin), each
+    more than ``tol`` from the ones before it, in order."""
+    out: list[float] = []
+    for p in periods:
+        if lo <= p <= 2 * hi and all(abs(p / q - 1) > tol for q in out):
+            out.append(float(p))
+    return out
 
 
 def _clean(x):

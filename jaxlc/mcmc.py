@@ -4,7 +4,8 @@
 
 1. periodogram (:mod:`jaxlc.period`) → seed periods k · P_ls, k = 1…4 (a body
    with several maxima per turn puts the periodogram peak at a fraction of
-   its period);
+   its period), and the three best peaks of a six-harmonic periodogram and
+   their doubles (glinting bodies put little power in one sinusoid);
 2. multi-start Levenberg–Marquardt (:func:`jaxlc.inference.multistart`) →
    distinct modes (mirror poles, period aliases), each with its χ²;
 3. emcee (``vectorize=True`` on a jitted, vmapped log-probability) started in
@@ -60,6 +61,8 @@ class FitSettings:
     subsamples: int = 1
     seed: int = 0
     period_s: float | None = None  # skip the periodogram: seed from this period
+    min_period_s: float | None = None  # periodogram search range (default: 2.5 steps …
+    max_period_s: float | None = None  # … to half the span)
 
     def __post_init__(self):
         if self.n_starts < 1:
@@ -219,8 +222,18 @@ def run_emcee(
     log = log or (lambda msg: None)
     lp = log_prob_fn(model, data, float(mode.theta_lm[3]))
     p0, centre, cov = initial_ball(model, data, mode, settings.walkers, rng)
-    if not np.all(np.isfinite(lp(p0))):
-        raise JaxlcError("emcee: the starting ball has points outside the prior (report this)")
+    # A broad mode's Laplace ball can reach past the prior's bounds: pull
+    # those walkers halfway back to the mode until all are inside.
+    for _ in range(30):
+        bad = ~np.isfinite(lp(p0))
+        if not bad.any():
+            break
+        p0[bad] = centre + 0.5 * (p0[bad] - centre)
+    else:
+        raise JaxlcError(
+            f"emcee: the mode at P = {mode.period_s:.6g} s has zero prior density "
+            "(noise or Δm at a bound); report this with the light curve"
+        )
     seed = int(rng.integers(2**31))
 
     def sampler(mean, c, stage):

@@ -286,3 +286,49 @@ def analyse_period(
 def fold_phase(t_s, period_s: float) -> np.ndarray:
     """Rotational phase in [0, 1) of each sample for a period (s)."""
     return np.mod(np.asarray(t_s, dtype=np.float64) / period_s, 1.0)
+
+
+def candidate_periods(
+    t_s,
+    mag,
+    min_period_s: float,
+    max_period_s: float,
+    n_terms: int = 6,
+    n_peaks: int = 3,
+    samples_per_peak: int = 10,
+) -> list[float]:
+    """The ``n_peaks`` best distinct periods of a multi-harmonic periodogram.
+
+    A light curve with sharp glints puts little power in any single sinusoid
+    (the one-term periodogram's peak can then be an alias or noise); an
+    ``n_terms``-harmonic Lomb–Scargle model (astropy, ``nterms``) follows the
+    whole folded shape. Its peaks at P and at multiples of P are equally good
+    (a series at 2P contains the harmonics of P): seed both.
+
+    Args:
+        t_s, mag: (N,) sample times (s) and magnitudes.
+        min_period_s, max_period_s: search range.
+
+    Returns:
+        Periods (s), best first, each > 1 % from the others.
+    """
+    from astropy.timeseries import LombScargle
+
+    t = np.asarray(t_s, np.float64)
+    y = _detrend(t, np.asarray(mag, np.float64), 2)
+    ls = LombScargle(t, y, nterms=n_terms)
+    freq, power = ls.autopower(
+        minimum_frequency=1.0 / max_period_s,
+        maximum_frequency=1.0 / min_period_s,
+        samples_per_peak=samples_per_peak,
+    )
+    # local maxima, strongest first
+    is_peak = np.r_[False, (power[1:-1] >= power[:-2]) & (power[1:-1] >= power[2:]), False]
+    peaks: list[float] = []
+    for k in np.flatnonzero(is_peak)[np.argsort(-power[is_peak])]:
+        p = 1.0 / float(freq[k])
+        if all(abs(p / q - 1) > 0.01 for q in peaks):
+            peaks.append(p)
+        if len(peaks) == n_peaks:
+            break
+    return peaks
