@@ -165,7 +165,7 @@ def print_table(df: pd.DataFrame) -> None:
         title="jaxlc bulk generation: the standard mix (S3–S6, 1,800 samples, auto shadows/blur)",
         caption="A: batched kernel per class (in-process, warm); B: whole generate() runs "
         "(fresh process; curves/s includes cluster start-up and compilation, steady: after the "
-        "first shard); C: blur capped, |Δm| against B",
+        "first shard); C: |Δm| of the automatic and capped blur against a fixed dense count",
     )
     for col in (
         "table",
