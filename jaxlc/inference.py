@@ -484,6 +484,18 @@ def _batch_magnitudes(model: SpinModel, arrays, thetas):
     return jax.vmap(lambda th: model.magnitudes(th, *arrays))(thetas)
 
 
+def reversed_starts(thetas, n_starts: int, rng: np.random.Generator) -> np.ndarray:
+    """(n_starts, 6) starts at the reversed poles −u of ``thetas`` (LM coordinates):
+    same period, phases spread uniformly, poles jittered by ~3°."""
+    base = np.asarray(thetas, np.float64)[np.arange(n_starts) % len(thetas)]
+    out = base.copy()
+    u = -base[:, :3] / np.linalg.norm(base[:, :3], axis=1, keepdims=True)
+    out[:, :3] = u + 0.05 * rng.standard_normal((n_starts, 3))
+    out[:, 4] = rng.uniform(0, 2 * np.pi, n_starts)
+    out[:, 5] = 0.0
+    return out
+
+
 def _match_offset(model: SpinModel, data: FitData, starts: np.ndarray) -> np.ndarray:
     """Set each start's Δm to the median offset between data and model."""
     thetas = jnp.asarray(starts, jnp.float32)
@@ -531,7 +543,7 @@ def multistart(
     search_samples: int = 64,
     search_steps: int = 10,
     refine_steps: int = 12,
-    max_modes: int = 6,
+    max_modes: int = 8,
     subsamples: int = 1,
     rng: np.random.Generator | None = None,
     log=None,
@@ -540,8 +552,10 @@ def multistart(
 
     The search model is the coarse one (:func:`coarsen_facets`, 128 normal
     bins) without shadows on ``search_samples`` evenly spread samples: it
-    only has to put starts into the right basins; the ``max_modes`` best
-    distinct optima are then refined on the exact model (shadows included).
+    only has to put starts into the right basins. A second solve of the same
+    size starts at the reversed poles of the four best optima
+    (:func:`reversed_starts`); the ``max_modes`` best distinct optima of both
+    are then refined on the exact model (shadows included).
 
     Returns:
         Distinct modes on the exact model, best (lowest χ²) first.
@@ -555,10 +569,18 @@ def multistart(
     )
     starts = _match_offset(coarse, sub, start_points(seeds_period_s, n_starts, rng))
     theta, cost = least_squares(coarse, sub, starts, max_steps=search_steps)
-    candidates = distinct_modes(theta, cost, sub.n, max_modes=max_modes)
+    first = distinct_modes(theta, cost, sub.n, max_modes=max_modes)
+    # The reversed spin (pole −u) of a good optimum gives a nearly time-reversed
+    # light curve: often as good, and often missed by random starts. A second
+    # batched solve of the same size (no new compilation) starts there.
+    rev = _match_offset(coarse, sub, reversed_starts([c[0] for c in first[:4]], n_starts, rng))
+    theta2, cost2 = least_squares(coarse, sub, rev, max_steps=search_steps)
+    candidates = distinct_modes(
+        np.concatenate([theta, theta2]), np.concatenate([cost, cost2]), sub.n, max_modes=max_modes
+    )
     log(
-        f"search: {n_starts} starts on {sub.n} samples → {len(candidates)} distinct optima "
-        "(coarse model)"
+        f"search: {n_starts} starts on {sub.n} samples, then {n_starts} at reversed poles → "
+        f"{len(candidates)} distinct optima (coarse model)"
     )
     exact = spin_model(scene, data.limit_mag, exact=True, subsamples=subsamples)
     init = np.stack([c[0] for c in candidates])
