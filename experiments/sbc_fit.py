@@ -16,7 +16,7 @@ the 50 % (90 %) region in 50 % (90 %) of the cases. Also the number of modes,
 chain length in τ and the run time. Blur is off on both sides (one sample per
 exposure), so the fit model is the data model.
 
-    python experiments/sbc_fit.py --cases 50 --scene s5_cubesat   # ~25 min on 2 cores
+    python experiments/sbc_fit.py --cases 50 --scene s5_cubesat   # ~26 min on 2 cores
 
 Output: experiments/results/sbc_fit.csv (one row per case, appended as it
 goes) and sbc_fit.png.
