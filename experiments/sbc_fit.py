@@ -34,7 +34,8 @@ import pandas as pd
 
 import jaxlc
 from jaxlc.fit import fit_spin
-from jaxlc.mcmc import FitSettings
+from jaxlc.inference import angle_between_deg
+from jaxlc.mcmc import FitSettings, pole_unit
 from jaxlc.plan import RenderOptions
 from jaxlc.scene import scene_from_dict  # noqa: F401
 
@@ -91,25 +92,20 @@ def case(scene, geo, k: int, settings: FitSettings, noise_mag: float = 0.05) -> 
     seconds = time.perf_counter() - t0
     s = r["samples"]
     w = s["weight"].to_numpy()
-    su = np.column_stack(
-        [
-            np.cos(np.radians(s.pole_dec_deg)) * np.cos(np.radians(s.pole_ra_deg)),
-            np.cos(np.radians(s.pole_dec_deg)) * np.sin(np.radians(s.pole_ra_deg)),
-            np.sin(np.radians(s.pole_dec_deg)),
-        ]
-    )
+    su = pole_unit(s)
     # Each sampled mode's mean pole; the truth's distance to the nearest one.
     means, d_samples = {}, np.empty(len(s))
     for j in s["mode"].unique():
         rows = (s["mode"] == j).to_numpy()
         m = su[rows].mean(axis=0)
         means[j] = m / np.linalg.norm(m)
-        d_samples[rows] = np.degrees(np.arccos(np.clip(su[rows] @ means[j], -1, 1)))
-    d_truth = {j: float(np.degrees(np.arccos(np.clip(u @ m, -1, 1)))) for j, m in means.items()}
+        d_samples[rows] = angle_between_deg(su[rows], means[j])
+    d_truth = {j: float(angle_between_deg(u, m)) for j, m in means.items()}
     nearest = min(d_truth, key=d_truth.get)
-    pole_err = float(
-        np.degrees(np.arccos(np.clip(u @ _unit(r["pole_ra_deg"], r["pole_dec_deg"]), -1, 1)))
+    best = pole_unit(
+        pd.DataFrame({"pole_ra_deg": [r["pole_ra_deg"]], "pole_dec_deg": [r["pole_dec_deg"]]})
     )
+    pole_err = float(angle_between_deg(u, best[0]))
     # Credible level of the truth under the mixture: the region is the union of
     # equal-radius caps about the modes' means (weights from the modes' evidence).
     pole_rank = float(np.sum(w[d_samples < d_truth[nearest]]))
@@ -144,11 +140,6 @@ def case(scene, geo, k: int, settings: FitSettings, noise_mag: float = 0.05) -> 
         "acceptance": r["diagnostics"]["acceptance"],
         "seconds": seconds,
     }
-
-
-def _unit(ra_deg, dec_deg):
-    ra, dec = math.radians(ra_deg), math.radians(dec_deg)
-    return np.array([math.cos(dec) * math.cos(ra), math.cos(dec) * math.sin(ra), math.sin(dec)])
 
 
 def plot(df: pd.DataFrame, path: Path) -> None:

@@ -32,7 +32,6 @@ import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 
-from jaxlc import photometry
 from jaxlc.attitude import Spin, SpinTimes
 from jaxlc.blur import choose_subsamples, direction_rate_rad_s, feature_scale_rad
 from jaxlc.brdf import BRDFS, FacetModel, facet_model
@@ -40,7 +39,12 @@ from jaxlc.dataset import Curve, DatasetConfig, SyntheticSource
 from jaxlc.mesh import facets_from_mesh, load_mesh
 from jaxlc.noise import airmass_from_elevation
 from jaxlc.photometry import AU_M
-from jaxlc.render import SpaceObject, compiler_options, light_curve_intensity
+from jaxlc.render import (
+    SpaceObject,
+    compiler_options,
+    light_curve_intensity,
+    observation_directions,
+)
 from jaxlc.shadow import shadow_data, shadow_table
 
 #: Direction given to rows that are not rendered (their result is discarded).
@@ -72,22 +76,6 @@ class CurveGeometry:
     utc_start: str
 
 
-def _directions(rso, sun, obs, shadow_nu):
-    """The same float64 steps as :func:`jaxlc.render.geometry_arrays`."""
-    to_sun = sun - rso
-    to_obs = obs - rso
-    with np.errstate(invalid="ignore", divide="ignore"):
-        sun_dist = np.linalg.norm(to_sun, axis=1)
-        range_m = np.linalg.norm(to_obs, axis=1)
-        s = to_sun / sun_dist[:, None]
-        v = to_obs / range_m[:, None]
-        phase = np.degrees(
-            np.arctan2(np.linalg.norm(np.cross(s, v), axis=1), np.sum(s * v, axis=1))
-        )
-        irradiance = photometry.solar_irradiance_w_m2(sun_dist, shadow_nu)
-    return s, v, range_m, irradiance, phase
-
-
 def curve_geometry(config: DatasetConfig, curve: Curve, pool=None) -> CurveGeometry:
     """Geometry of a curve: its synthetic track, or its rows of the pass pool."""
     n, cadence = config.samples, config.cadence_s
@@ -108,14 +96,14 @@ def curve_geometry(config: DatasetConfig, curve: Curve, pool=None) -> CurveGeome
         obs = rng[:, None] * (np.cos(alpha)[:, None] * s + np.sin(alpha)[:, None] * e)
         sun = np.broadcast_to(AU_M * s, (n, 3))
         nu = np.ones(n)
-        s_dir, v_dir, range_m, irr, phase = _directions(np.zeros((n, 3)), sun, obs, nu)
+        s_dir, v_dir, range_m, irr, phase = observation_directions(np.zeros((n, 3)), sun, obs, nu)
         visible = np.ones(n, bool)
         airmass = np.full(n, config.noise.airmass if config.noise is not None else 1.0)
         utc = config.geometry.start_utc
     else:
         rows = pool.rows(g["pass_id"], g["offset"], n)
         nu = rows["shadow_nu"]
-        s_dir, v_dir, range_m, irr, phase = _directions(
+        s_dir, v_dir, range_m, irr, phase = observation_directions(
             rows["rso_m"], rows["sun_m"], rows["obs_m"], nu
         )
         with np.errstate(invalid="ignore"):

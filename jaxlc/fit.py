@@ -69,8 +69,7 @@ def fit_spin(
             min_period_s=settings.min_period_s,
             max_period_s=settings.max_period_s,
         )
-        lo = settings.min_period_s or 2.5 * float(np.median(np.diff(np.sort(data.t_s))))
-        hi = settings.max_period_s or float(np.ptp(data.t_s)) / 2
+        lo, hi = pr.min_period_s, pr.max_period_s
         seeds = _distinct(
             [k * pr.ls_period_s for k in (1, 2, 3, 4)]
             + [

@@ -185,7 +185,7 @@ def _moves(mean, cov):
     return [(IndependenceMove(mean, cov).move, 0.7), (emcee.moves.DEMove(), 0.3)]
 
 
-def _robust_cov(x: np.ndarray, fallback: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _sample_cov(x: np.ndarray, fallback: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     mean = np.mean(x, axis=0)
     cov = np.cov(x, rowvar=False)
     try:
@@ -248,7 +248,7 @@ def run_emcee(
     adapt = sampler(centre, cov, 0)
     state = adapt.run_mcmc(p0, settings.adapt_steps, progress=False)
     half = adapt.get_chain(discard=settings.adapt_steps // 2, flat=True)
-    mean, cov2 = _robust_cov(half, cov)
+    mean, cov2 = _sample_cov(half, cov)
     log(
         f"  emcee: adaptation {settings.adapt_steps} steps, acceptance "
         f"{np.mean(adapt.acceptance_fraction):.2f}"

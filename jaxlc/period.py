@@ -43,7 +43,8 @@ HALVES_P_THRESHOLD = 0.01
 
 @dataclasses.dataclass(frozen=True)
 class PeriodResult:
-    """The outcome of :func:`analyse_period` (seconds, magnitudes)."""
+    """The outcome of :func:`analyse_period` (seconds, magnitudes; ``min_period_s`` and
+    ``max_period_s``: the range searched)."""
 
     period_s: float
     ls_period_s: float
@@ -58,6 +59,8 @@ class PeriodResult:
     amplitude_mag: float
     n_samples: int
     span_s: float
+    min_period_s: float
+    max_period_s: float
     decision: str
     alternative_period_s: float
     frequency_hz: np.ndarray = dataclasses.field(repr=False)
@@ -275,6 +278,8 @@ def analyse_period(
         amplitude_mag=float(np.ptp(model)),
         n_samples=len(t),
         span_s=span,
+        min_period_s=p_min,
+        max_period_s=p_max,
         decision=decision,
         alternative_period_s=(2 if factor == 1 else 1) * ls_period,
         frequency_hz=np.asarray(freq),

@@ -270,13 +270,12 @@ class GeometryArrays:
     origin_utc: pd.Timestamp | None
 
 
-def geometry_arrays(table: pd.DataFrame, default_exposure_s: float = 1.0) -> GeometryArrays:
-    """Directions, ranges, irradiance and phase angles of a validated geometry table."""
-    pos = {
-        b: table[[f"{b}_{c}_m" for c in "xyz"]].to_numpy(np.float64) for b in ("rso", "sun", "obs")
-    }
-    to_sun = pos["sun"] - pos["rso"]
-    to_obs = pos["obs"] - pos["rso"]
+def observation_directions(rso_m, sun_m, obs_m, shadow_nu):
+    """Unit vectors object→Sun and object→observer (T, 3), range (T,) in m,
+    solar irradiance (T,) in W/m² and phase angle (T,) in degrees, from
+    float64 positions (T, 3) in m and the shadow function ν (T,)."""
+    to_sun = sun_m - rso_m
+    to_obs = obs_m - rso_m
     with np.errstate(invalid="ignore", divide="ignore"):
         sun_dist = np.linalg.norm(to_sun, axis=1)
         range_m = np.linalg.norm(to_obs, axis=1)
@@ -285,7 +284,18 @@ def geometry_arrays(table: pd.DataFrame, default_exposure_s: float = 1.0) -> Geo
         phase = np.degrees(
             np.arctan2(np.linalg.norm(np.cross(s, v), axis=1), np.sum(s * v, axis=1))
         )
-        irradiance = photometry.solar_irradiance_w_m2(sun_dist, table["shadow_nu"].to_numpy())
+        irradiance = photometry.solar_irradiance_w_m2(sun_dist, shadow_nu)
+    return s, v, range_m, irradiance, phase
+
+
+def geometry_arrays(table: pd.DataFrame, default_exposure_s: float = 1.0) -> GeometryArrays:
+    """Directions, ranges, irradiance and phase angles of a validated geometry table."""
+    pos = {
+        b: table[[f"{b}_{c}_m" for c in "xyz"]].to_numpy(np.float64) for b in ("rso", "sun", "obs")
+    }
+    s, v, range_m, irradiance, phase = observation_directions(
+        pos["rso"], pos["sun"], pos["obs"], table["shadow_nu"].to_numpy()
+    )
     exposure = table["exposure_s"].to_numpy(np.float64).copy()
     exposure[np.isnan(exposure)] = default_exposure_s
     t = table["t_s"].to_numpy(np.float64)

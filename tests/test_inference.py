@@ -173,23 +173,29 @@ def cubesat_case():
     return scene, geo, lc
 
 
-def test_model_at_the_truth_reproduces_render(cubesat_case):
-    """The fit's model (LM coordinates) equals jaxlc.render at the scene's own spin."""
+def _clean_fit_and_model(scene, geo):
+    """The fit data of a noise-free render and the fit model's magnitudes at the
+    scene's own spin (LM coordinates), both (N,)."""
     import jax.numpy as jnp
 
     from jaxlc.attitude import phase_at_offset_deg, pole_vector
     from jaxlc.inference import data_arrays, fit_data, spin_model
     from jaxlc.plan import RenderOptions
 
-    scene, geo, _ = cubesat_case
-    clean = jaxlc.render(scene, geo, options=RenderOptions(blur="off"))
-    data = fit_data(clean, geo)
+    data = fit_data(jaxlc.render(scene, geo, options=RenderOptions(blur="off")), geo)
     a = scene.attitude
     off = (data.epoch_utc - a.epoch_utc).total_seconds()
     phase = math.radians(phase_at_offset_deg(a.phase_deg, a.period_s, off))
     u = np.asarray(pole_vector(math.radians(a.pole_ra_deg), math.radians(a.pole_dec_deg)))
     theta = jnp.asarray([*u, math.log(a.period_s), phase, 0.0], jnp.float32)
     m = np.asarray(spin_model(scene, data.limit_mag).magnitudes(theta, *data_arrays(data)))
+    return data, m
+
+
+def test_model_at_the_truth_reproduces_render(cubesat_case):
+    """The fit's model (LM coordinates) equals jaxlc.render at the scene's own spin."""
+    scene, geo, _ = cubesat_case
+    data, m = _clean_fit_and_model(scene, geo)
     bright = data.mag < data.limit_mag - 1
     d = np.abs(m[bright] - data.mag[bright])
     # float32 noise only: a systematic offset of a few mmag biases the period by σ's
@@ -278,23 +284,11 @@ def test_laplace_log_evidence_of_a_gaussian():
 def test_model_matches_render_on_faint_samples():
     """Faint samples above the clip (2–4 mag below the median) carry no floor bias:
     the intensity floor that keeps unlit samples finite must stay far below them."""
-    import jax.numpy as jnp
-
-    from jaxlc.attitude import phase_at_offset_deg, pole_vector
-    from jaxlc.inference import data_arrays, fit_data, spin_model
-    from jaxlc.plan import RenderOptions
-
     scene = jaxlc.load_scene("experiments/scenes/s5_cubesat.toml")
     geo = jaxlc.synthetic_geometry(
         duration_s=600, step_s=1.0, phase_start_deg=30, phase_end_deg=150, tilt_deg=40
     )
-    data = fit_data(jaxlc.render(scene, geo, options=RenderOptions(blur="off")), geo)
-    a = scene.attitude
-    off = (data.epoch_utc - a.epoch_utc).total_seconds()
-    phase = math.radians(phase_at_offset_deg(a.phase_deg, a.period_s, off))
-    u = np.asarray(pole_vector(math.radians(a.pole_ra_deg), math.radians(a.pole_dec_deg)))
-    theta = jnp.asarray([*u, math.log(a.period_s), phase, 0.0], jnp.float32)
-    m = np.asarray(spin_model(scene, data.limit_mag).magnitudes(theta, *data_arrays(data)))
+    data, m = _clean_fit_and_model(scene, geo)
     med = np.median(data.mag)
     faint = (data.mag > med + 2) & (data.mag < data.limit_mag - 1)
     assert np.count_nonzero(faint) >= 20  # the case must have faint samples to test
