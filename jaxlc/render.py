@@ -173,6 +173,25 @@ def compiler_options() -> dict | None:
     return dict(CPU_COMPILER_OPTIONS)
 
 
+def filter_jit(fn):
+    """``eqx.filter_jit`` with :func:`compiler_options` (fixed on the first call).
+
+    For functions of pytrees that hold a facet model (fit models, log-posteriors):
+    on the CPU the facet sum and its derivatives run 1.4-2.4× faster compiled this
+    way (measured on S4 in the spin fit).
+    """
+    jitted = None
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        nonlocal jitted
+        if jitted is None:
+            jitted = eqx.filter_jit(fn, compiler_options=compiler_options())
+        return jitted(*args, **kwargs)
+
+    return wrapper
+
+
 @functools.cache
 def _intensity_jit():
     return jax.jit(

@@ -5,6 +5,7 @@ from __future__ import annotations
 import subprocess
 import sys
 
+import pytest
 from helpers import REPO
 
 import jaxlc
@@ -68,4 +69,30 @@ def test_pareto_quick(tmp_path):
     assert r.returncode == 0, r.stderr
     df = jaxlc.read_table(out)
     assert set(df["knob"]) == {"facets", "shadows", "blur"}
+    assert out.with_suffix(".png").read_bytes()[:4] == b"\x89PNG"
+
+
+@pytest.mark.slow
+def test_sbc_fit_small(tmp_path):
+    """The calibration study in small: its first three cases (fixed seeds: random
+    pole, period and phase, 0.05 mag noise over the real pass) with fewer starts.
+    Each must recover the period and, in one of its modes, the pole."""
+    out = tmp_path / "sbc.csv"
+    r = subprocess.run(
+        [
+            sys.executable,
+            str(REPO / "experiments" / "sbc_fit.py"),
+            *("--cases", "3", "--starts", "512", "--max-steps", "1000", "--modes", "2"),
+            *("--out", str(out)),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=900,
+    )
+    assert r.returncode == 0, r.stderr
+    df = jaxlc.read_table(out)
+    assert len(df) == 3
+    assert (df["period_rel_err"].abs() < 1e-3).all()
+    assert (df["nearest_pole_err_deg"] < 3.0).all()
+    assert df["period_rank"].between(0, 1).all() and df["pole_rank"].between(0, 1).all()
     assert out.with_suffix(".png").read_bytes()[:4] == b"\x89PNG"
