@@ -245,6 +245,30 @@ def test_fit_recovers_spin_state(cubesat_case, tmp_path):
         assert (tmp_path / f).stat().st_size > 0
 
 
+def test_fit_cli(cubesat_case, tmp_path, monkeypatch, capsys):
+    """``jaxlc fit`` end to end on files; a light curve without matching geometry
+    rows is refused with the row named, before any work."""
+    from jaxlc.cli import main
+
+    scene, geo, lc = cubesat_case
+    monkeypatch.setenv("JAXLC_XLA_CACHE", "off")
+    jaxlc.write_table(lc, tmp_path / "lc.csv")
+    jaxlc.write_table(geo, tmp_path / "geo.csv")
+    jaxlc.write_table(geo.iloc[: len(geo) // 2], tmp_path / "half.csv")
+    scene_file = "experiments/scenes/s5_cubesat.toml"
+    common = ["--starts", "256", "--max-steps", "500", "--mcmc-modes", "1", "--period-s", "10"]
+    out = tmp_path / "fit"
+    args = ["fit", scene_file, str(tmp_path / "lc.csv"), "--geometry", str(tmp_path / "geo.csv")]
+    assert main([*args, "-o", str(out), *common]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["period_s"] == pytest.approx(scene.attitude.period_s, rel=1e-3)
+    assert jaxlc.read_table(out / "samples.parquet")["weight"].sum() == pytest.approx(1.0)
+    bad = ["fit", scene_file, str(tmp_path / "lc.csv"), "--geometry", str(tmp_path / "half.csv")]
+    assert main([*bad, "-o", str(tmp_path / "bad"), *common]) != 0
+    assert "no geometry row" in capsys.readouterr().err
+    assert not (tmp_path / "bad" / "summary.json").exists()
+
+
 def test_independence_move_samples_its_target():
     """The t proposal's Hastings factor is right: the chain has the target's
     moments, not the proposal's (target and proposal differ on purpose)."""
