@@ -35,7 +35,8 @@ demo: setup
 		-o $(DEMO)/geometry.csv
 	$(BIN)/jaxlc render experiments/scenes/s4_falcon9.toml $(DEMO)/geometry.csv \
 		-o $(DEMO)/lightcurve.csv --plot $(DEMO)/lightcurve.png
-	@echo "demo output: $(DEMO)/geometry.csv, $(DEMO)/lightcurve.csv, $(DEMO)/lightcurve.png"
+	$(BIN)/jaxlc period tests/data/mmt/10025_10114859.txt --plot $(DEMO)/period.png
+	@echo "demo output: $(DEMO)/geometry.csv, $(DEMO)/lightcurve.csv, $(DEMO)/lightcurve.png, $(DEMO)/period.png"
 
 ## test: the whole suite
 test: setup
