@@ -272,9 +272,14 @@ def run_emcee(
     while steps < settings.max_steps:
         state = main.run_mcmc(state, settings.block_steps, progress=False)
         steps += settings.block_steps
-        tau = np.maximum(emcee.autocorr.integrated_time(main.get_chain(), tol=0, quiet=True), 1.0)
-        length = steps / np.max(tau)
-        log(f"  emcee: {steps} steps kept, τ = {np.round(tau, 1)}, length {length:.0f} τ")
+        # A walker that has not moved in the kept chain has no autocorrelation
+        # (0/0): τ is NaN, the chain counts as too short and sampling goes on.
+        with np.errstate(invalid="ignore", divide="ignore"):
+            tau = emcee.autocorr.integrated_time(main.get_chain(), tol=0, quiet=True)
+        tau = np.maximum(tau, 1.0)
+        length = steps / np.max(tau) if np.all(np.isfinite(tau)) else 0.0
+        stuck = "" if np.all(np.isfinite(tau)) else " (a walker has not moved yet)"
+        log(f"  emcee: {steps} steps kept, τ = {np.round(tau, 1)}, length {length:.0f} τ{stuck}")
         if length >= settings.min_tau:
             break
     chain, log_prob = main.get_chain(), main.get_log_prob()
@@ -286,8 +291,8 @@ def run_emcee(
         "steps": steps,
         "burn": settings.adapt_steps,
         "acceptance": float(np.mean(main.acceptance_fraction)),
-        "chain_length_tau": float(steps / np.max(tau)),
-        "converged": bool(steps / np.max(tau) >= settings.min_tau),
+        "chain_length_tau": float(length),
+        "converged": bool(length >= settings.min_tau),
         "seconds": time.perf_counter() - t0,
     }
 
