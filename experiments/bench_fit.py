@@ -52,28 +52,8 @@ def main(argv=None):
         lc = clean.copy()
         lc["mag"] = lc["mag"] + 0.05 * np.random.default_rng(run).standard_normal(len(lc))
         r = fit_spin(scene, lc, geo, FitSettings(max_steps=a.max_steps, seed=run), log=print)
-        d = r["diagnostics"]
-        rows.append(
-            {
-                "scene": a.scene,
-                "run": run,
-                "compiles": "yes" if run == 0 else "no (same process)",
-                "samples": r["data"]["samples"],
-                **r["timings_s"],
-                "modes_sampled": sum("mcmc" in m for m in r["modes"]),
-                "walkers": d["walkers"],
-                "steps_kept": d["steps"],
-                "adapt_steps": d["burn_in"],
-                "tau_max": max(d["tau"].values()),
-                "chain_length_tau": d["chain_length_tau"],
-                "acceptance": d["acceptance"],
-                "period_s": r["period_s"],
-                "true_period_s": att.period_s,
-                "pole_ra_deg": r["pole_ra_deg"],
-                "pole_dec_deg": r["pole_dec_deg"],
-                "true_pole": f"({att.pole_ra_deg}, {att.pole_dec_deg})",
-            }
-        )
+        compiles = "yes" if run == 0 else "no (same process)"
+        rows.append(result_row(r, a.scene, run, compiles, att))
         print(pd.Series(rows[-1]).to_string(), flush=True)
     rows += cli_runs(a.scene, clean, geo, a.cli, att)
     df = pd.DataFrame(rows)
@@ -88,6 +68,31 @@ def main(argv=None):
     )
     print(df.T.to_string())
     jaxlc.write_table(df, REPO / "experiments" / "results" / f"bench_fit_{a.scene}.csv")
+
+
+def result_row(r: dict, scene_name: str, run, compiles: str, att, **extra) -> dict:
+    """One CSV row from a fit's summary (the dict of ``fit_spin`` or its summary.json)."""
+    d = r["diagnostics"]
+    return {
+        "scene": scene_name,
+        "run": run,
+        "compiles": compiles,
+        "samples": r["data"]["samples"],
+        **r["timings_s"],
+        **extra,
+        "modes_sampled": sum("mcmc" in m for m in r["modes"]),
+        "walkers": d["walkers"],
+        "steps_kept": d["steps"],
+        "adapt_steps": d["burn_in"],
+        "tau_max": max(d["tau"].values()),
+        "chain_length_tau": d["chain_length_tau"],
+        "acceptance": d["acceptance"],
+        "period_s": r["period_s"],
+        "true_period_s": att.period_s,
+        "pole_ra_deg": r["pole_ra_deg"],
+        "pole_dec_deg": r["pole_dec_deg"],
+        "true_pole": f"({att.pole_ra_deg}, {att.pole_dec_deg})",
+    }
 
 
 def cli_runs(scene_name: str, clean: pd.DataFrame, geo: pd.DataFrame, runs: int, att) -> list[dict]:
@@ -118,29 +123,8 @@ def cli_runs(scene_name: str, clean: pd.DataFrame, geo: pd.DataFrame, runs: int,
         subprocess.run(cmd, env=env, check=True, capture_output=True)
         wall = time.perf_counter() - t0
         r = json.loads((out / "summary.json").read_text())
-        d = r["diagnostics"]
-        rows.append(
-            {
-                "scene": scene_name,
-                "run": f"cli{run}",
-                "compiles": "yes (empty cache)" if run == 0 else "no (persistent cache)",
-                "samples": r["data"]["samples"],
-                **r["timings_s"],
-                "wall_s": wall,
-                "modes_sampled": sum("mcmc" in m for m in r["modes"]),
-                "walkers": d["walkers"],
-                "steps_kept": d["steps"],
-                "adapt_steps": d["burn_in"],
-                "tau_max": max(d["tau"].values()),
-                "chain_length_tau": d["chain_length_tau"],
-                "acceptance": d["acceptance"],
-                "period_s": r["period_s"],
-                "pole_ra_deg": r["pole_ra_deg"],
-                "pole_dec_deg": r["pole_dec_deg"],
-                "true_period_s": att.period_s,
-                "true_pole": f"({att.pole_ra_deg}, {att.pole_dec_deg})",
-            }
-        )
+        compiles = "yes (empty cache)" if run == 0 else "no (persistent cache)"
+        rows.append(result_row(r, scene_name, f"cli{run}", compiles, att, wall_s=wall))
         print(pd.Series(rows[-1]).to_string(), flush=True)
     return rows
 

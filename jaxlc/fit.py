@@ -188,14 +188,12 @@ def fit_spin(
     return summary
 
 
-def _distinct(periods, lo: float, hi: float, tol: float = 0.01) -> list[float]:
+def _distinct(periods, lo: float, hi: float) -> list[float]:
     """Periods within [lo, 2 hi] (a multiple of the longest searched may be the spin), each
-    more than ``tol`` from the ones before it, in order."""
-    out: list[float] = []
-    for p in periods:
-        if lo <= p <= 2 * hi and all(abs(p / q - 1) > tol for q in out):
-            out.append(float(p))
-    return out
+    more than 1 % from the ones before it, in order."""
+    from jaxlc.period import distinct_periods
+
+    return distinct_periods(p for p in periods if lo <= p <= 2 * hi)
 
 
 def _clean(x):

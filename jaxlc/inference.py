@@ -437,7 +437,12 @@ def dense_jvp(fn):
     @wrapped.defjvp
     def _jvp(primals, tangents):
         (theta,), (dt,) = primals, tangents
-        jac, value = jax.jacfwd(lambda x: (fn(x), fn(x)), has_aux=True)(theta)
+
+        def value_twice(x):  # one trace of fn: the Jacobian's output and the value
+            y = fn(x)
+            return y, y
+
+        jac, value = jax.jacfwd(value_twice, has_aux=True)(theta)
         return value, jac @ dt
 
     return wrapped

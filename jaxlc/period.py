@@ -329,11 +329,17 @@ def candidate_periods(
     )
     # local maxima, strongest first
     is_peak = np.r_[False, (power[1:-1] >= power[:-2]) & (power[1:-1] >= power[2:]), False]
-    peaks: list[float] = []
-    for k in np.flatnonzero(is_peak)[np.argsort(-power[is_peak])]:
-        p = 1.0 / float(freq[k])
-        if all(abs(p / q - 1) > 0.01 for q in peaks):
-            peaks.append(p)
-        if len(peaks) == n_peaks:
+    order = np.flatnonzero(is_peak)[np.argsort(-power[is_peak])]
+    return distinct_periods(1.0 / freq[order], limit=n_peaks)
+
+
+def distinct_periods(periods, tol: float = 0.01, limit: int | None = None) -> list[float]:
+    """The periods, in order, each more than a fraction ``tol`` from those before it
+    (the first ``limit`` of them)."""
+    out: list[float] = []
+    for p in periods:
+        if len(out) == limit:
             break
-    return peaks
+        if all(abs(p / q - 1) > tol for q in out):
+            out.append(float(p))
+    return out
