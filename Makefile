@@ -33,7 +33,7 @@ demo: setup
 	$(BIN)/jaxlc geometry pass --tle data/tle/falcon9_rb.tle --norad 45921 --site mt-stromlo \
 		--start 2020-08-10T18:00:00Z --duration-s 1200 --step-s 1 --exposure-s 1 \
 		-o $(DEMO)/geometry.csv
-	$(BIN)/jaxlc render experiments/scenes/s4_falcon9.toml $(DEMO)/geometry.csv \
+	$(BIN)/jaxlc render s4_falcon9 $(DEMO)/geometry.csv \
 		-o $(DEMO)/lightcurve.csv --plot $(DEMO)/lightcurve.png
 	$(BIN)/jaxlc period tests/data/mmt/10025_10114859.txt --plot $(DEMO)/period.png
 	@echo "demo output: $(DEMO)/geometry.csv, $(DEMO)/lightcurve.csv, $(DEMO)/lightcurve.png, $(DEMO)/period.png"
@@ -50,15 +50,15 @@ bench: setup
 
 ## lint: ruff
 lint: setup
-	$(BIN)/ruff check jaxlc calibrate tests experiments meshes
-	$(BIN)/ruff format --check jaxlc calibrate tests experiments meshes
+	$(BIN)/ruff check jaxlc calibrate tests experiments
+	$(BIN)/ruff format --check jaxlc calibrate tests experiments
 
 format: setup
-	$(BIN)/ruff format jaxlc calibrate tests experiments meshes
+	$(BIN)/ruff format jaxlc calibrate tests experiments
 
 ## meshes: rebuild the shipped shape models
 meshes: setup
-	$(BIN)/python meshes/make_meshes.py
+	$(BIN)/python experiments/make_meshes.py
 
 clean:
 	rm -rf build .pytest_cache .ruff_cache .hypothesis

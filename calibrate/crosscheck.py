@@ -30,23 +30,15 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+import jaxlc
 from calibrate.job import BlenderOptions
 from calibrate.render import blender_render
-from jaxlc.brdf import ASGlossy, Lambert
-from jaxlc.plan import RenderOptions
+from jaxlc import ASGlossy, Lambert, RenderOptions, Scene, load_scene, write_table
 from jaxlc.plot import save_figure
-from jaxlc.scene import MaterialSpec, Scene, load_scene
-from jaxlc.tables import write_table
+from jaxlc.scene import SHIPPED_SCENES, MaterialSpec
 
-REPO = Path(__file__).resolve().parent.parent
-SCENES = {
-    "S1": "s1_plate",
-    "S2": "s2_sphere",
-    "S3": "s3_cylinder",
-    "S4": "s4_falcon9",
-    "S5": "s5_cubesat",
-    "S6": "s6_boxwing",
-}
+#: The standard scenes (shipped with jaxlc) by id.
+SCENES = SHIPPED_SCENES
 MODES = ("direct", "bounces", "blur")
 #: Targets of issue 5 (direct light, same material): RMS |Δm|.
 TARGET_RMS_MAG = {"convex": 0.02, "non-convex": 0.05}
@@ -66,8 +58,6 @@ def same_material(scene: Scene) -> Scene:
 
 def crosscheck_geometry(frames: int = 24, duration_s: float = 1200.0) -> pd.DataFrame:
     """A synthetic pass sampled at ``frames`` exposures of 1 s."""
-    import jaxlc
-
     return jaxlc.synthetic_geometry(
         duration_s=duration_s,
         step_s=duration_s / frames,
@@ -81,7 +71,7 @@ def crosscheck_geometry(frames: int = 24, duration_s: float = 1200.0) -> pd.Data
     )
 
 
-def _stats(blender: pd.DataFrame, jax_lc: pd.DataFrame) -> dict:
+def abs_mag_stats(blender: pd.DataFrame, jax_lc: pd.DataFrame) -> dict:
     ok = np.isfinite(blender["mag"]) & np.isfinite(jax_lc["mag"])
     dm = (blender["mag"] - jax_lc["mag"])[ok].to_numpy()
     if not dm.size:
@@ -118,13 +108,11 @@ def run_crosscheck(
     Returns:
         (summary per scene and mode, per-frame magnitudes of both renderers).
     """
-    import jaxlc
-
     geo = crosscheck_geometry(frames)
     full = crosscheck_geometry(1200)  # the whole pass at 1 Hz, for the speed ratio
     rows, per_frame = [], []
     for sid in scenes:
-        scene = same_material(load_scene(REPO / "experiments" / "scenes" / f"{SCENES[sid]}.toml"))
+        scene = same_material(load_scene(sid))
         convex = scene.facets.convex
         for mode in modes:
             blur = mode == "blur"
@@ -152,7 +140,7 @@ def run_crosscheck(
                 else (lambda d, n, s=sid, m=mode: progress(s, m, d, n)),
             )
             blender_s = float(np.nanmean(b["blender_seconds"]))
-            stats = _stats(b, j)
+            stats = abs_mag_stats(b, j)
             target = (
                 TARGET_RMS_MAG["convex" if convex else "non-convex"] if mode == "direct" else np.nan
             )
@@ -259,7 +247,7 @@ def timing_sweep(
     out_dir: Path | None = None,
 ) -> pd.DataFrame:
     """Cycles seconds per frame against resolution and samples (direct light)."""
-    scene = same_material(load_scene(REPO / "experiments" / "scenes" / f"{SCENES[scene_id]}.toml"))
+    scene = same_material(load_scene(scene_id))
     geo = crosscheck_geometry(frames)
     rows = []
     for res in resolutions:

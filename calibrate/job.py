@@ -7,7 +7,9 @@ part, and per frame the body → inertial rotation as quaternions (computed by
 jaxlc's own attitude model: the two renderers share the spin by construction),
 the body-centred Sun and observer directions, the irradiance and the camera.
 
-A job is a folder: ``job.json`` (settings) and ``arrays.npz`` (arrays).
+A job is a folder: ``job.json`` (settings, with the format's ``version``,
+:data:`JOB_VERSION`) and ``arrays.npz`` (arrays). The worker checks the
+version and every array's shape before it renders anything.
 """
 
 from __future__ import annotations
@@ -19,8 +21,10 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxlc.brdf import AbstractBRDF, ASGlossy, AshikhminShirley, Lambert
-from jaxlc.errors import JaxlcError
+from jaxlc import AbstractBRDF, ASGlossy, AshikhminShirley, JaxlcError, Lambert
+
+#: Version of the job format; the worker refuses any other (``calibrate/worker.py``).
+JOB_VERSION = 2
 
 
 @dataclasses.dataclass(frozen=True)
@@ -206,7 +210,7 @@ def write_job(
         arrays[key] = np.asarray(value, np.float64)
     np.savez(job_dir / "arrays.npz", **arrays)
     job = {
-        "version": 1,
+        "version": JOB_VERSION,
         "parts": [name for name, _, _ in parts],
         "materials": materials,
         "camera": camera,

@@ -30,12 +30,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+import jaxlc
 from calibrate.job import BlenderOptions, material_spec, matrix_to_quaternion, write_job
 from calibrate.runner import default_timeout_s, run_worker
-from jaxlc import photometry
-from jaxlc.mesh import load_mesh
-from jaxlc.scene import Scene, load_scene
-from jaxlc.tables import read_geometry, validate_geometry
+from jaxlc.rendering import photometry
 
 #: The seed's calibration plate: 1 × 1 m, white Lambert, both sides.
 PLATE_VERTICES = np.array([[-0.5, -0.5, 0.0], [0.5, -0.5, 0.0], [0.5, 0.5, 0.0], [-0.5, 0.5, 0.0]])
@@ -56,42 +54,31 @@ class Calibration:
         return self.m_ff - self.i_mb
 
 
-def _parts(scene: Scene):
-    mesh = load_mesh(scene.mesh_path, scene.scale)
+def _parts(scene: jaxlc.Scene):
+    mesh = scene.mesh  # at the scene's scale
     parts = []
     for k, name in enumerate(mesh.part_names):
         faces = mesh.faces[mesh.face_part == k]
         used, inverse = np.unique(faces, return_inverse=True)
         parts.append((name, mesh.vertices_m[used], inverse.reshape(faces.shape)))
     radius = float(np.max(np.linalg.norm(mesh.vertices_m, axis=1)))
-    return mesh, parts, radius
+    return parts, radius
 
 
-def _rotations(scene: Scene, geo, idx: np.ndarray, keyframes: int) -> np.ndarray:
-    """(n, K, 4) body→inertial quaternions: mid-exposure (K = 1) or spanning it."""
-    import jax
-    import jax.numpy as jnp
-
-    if keyframes == 1:
-        t = geo.t_eval_s[idx][:, None]
-    else:
-        frac = np.linspace(0.0, 1.0, keyframes)
-        t = geo.t_start_s[idx][:, None] + geo.exposure_s[idx][:, None] * frac[None, :]
-    with jax.enable_x64(True):
-        attitude = scene.attitude.build(geo.origin_utc, jnp.float64)
-        times = attitude.times(t.ravel(), **scene.attitude.exact_parameters())
-        r = np.asarray(attitude.rotation(times))
-    q = matrix_to_quaternion(r).reshape(len(idx), keyframes, 4)
+def _quaternions(prepared: jaxlc.Prepared) -> np.ndarray:
+    """(n, K, 4) body→inertial quaternions at each exposure's K prepared instants."""
+    q = matrix_to_quaternion(jaxlc.rotation_matrices(prepared))
+    q = q.reshape(prepared.exposures.n_rows, prepared.exposures.subsamples, 4)
     # q and −q are one rotation; keep each exposure's keyframes on one side so that
     # Blender's interpolation between them is the short way round.
-    for k in range(1, keyframes):
+    for k in range(1, q.shape[1]):
         flip = np.sum(q[:, k] * q[:, k - 1], axis=1) < 0
         q[flip, k] *= -1.0
     return q
 
 
 def blender_render(
-    scene: Scene | str | Path,
+    scene: jaxlc.Scene | str | Path,
     geometry: pd.DataFrame | str | Path,
     options: BlenderOptions | None = None,
     progress=None,
@@ -110,23 +97,24 @@ def blender_render(
         The light-curve table of ``jaxlc.render`` plus ``blender_seconds`` per
         row; ``attrs`` record the renderer and its settings.
     """
-    from jaxlc.plan import make_plan
-    from jaxlc.render import geometry_arrays, lightcurve_table
-
     options = options or BlenderOptions()
-    if not isinstance(scene, Scene):
-        scene = load_scene(scene)
-    table = (
-        read_geometry(geometry)
-        if not isinstance(geometry, pd.DataFrame)
-        else validate_geometry(geometry)
-    )
-    geo = geometry_arrays(table, scene.exposure_s)
-    idx = np.flatnonzero(geo.visible)
+    # The same preparation as jaxlc.render (float64): rows, directions,
+    # irradiance and the attitude at each exposure's instants — the exposure's
+    # midpoint, or with motion blur its keyframes from start to end.
+    prepared = jaxlc.prepare(scene, geometry, precision="float64")
     keyframes = 1
     if options.motion_blur:
-        keyframes = options.keyframes or max(2, make_plan(scene, geo).subsamples)
-    _, parts, radius = _parts(scene)
+        keyframes = options.keyframes or max(2, prepared.plan.subsamples)
+        prepared = jaxlc.prepare(
+            prepared.scene,
+            prepared.table,
+            precision="float64",
+            subsamples=keyframes,
+            quadrature="endpoints",
+        )
+    scene, table, geo = prepared.scene, prepared.table, prepared.geometry
+    idx = prepared.exposures.rows
+    parts, radius = _parts(scene)
     materials = [
         material_spec(name, brdf)
         for name, brdf in zip(
@@ -146,7 +134,7 @@ def blender_render(
         if len(idx):
             rng = geo.range_m[idx]
             frames = {
-                "quaternions": _rotations(scene, geo, idx, keyframes),
+                "quaternions": _quaternions(prepared),
                 "sun_dir": geo.sun_dir[idx],
                 "obs_dir": geo.obs_dir[idx],
                 "irradiance_w_m2": geo.irradiance_w_m2[idx],
@@ -187,7 +175,7 @@ def blender_render(
                 flux = photometry.C_SUN_VIS_W_M2 * 10 ** (-0.4 * (mag - photometry.M_SUN_V))
                 intensity[idx] = flux * rng**2 / e
 
-    out = lightcurve_table(
+    out = jaxlc.lightcurve_table(
         table, geo, intensity, blender_pixel_sum=pixel_sum, blender_seconds=seconds
     )
     out.attrs.update(

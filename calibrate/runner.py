@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from calibrate.environment import find_blender_environment
-from jaxlc.errors import JaxlcError
+from jaxlc import JaxlcError
 
 WORKER = Path(__file__).resolve().parent / "worker.py"
 

@@ -24,6 +24,9 @@ import os
 import sys
 import time
 
+#: The job format this worker reads (``calibrate.job.JOB_VERSION`` writes it).
+JOB_VERSION = 2
+
 
 def _fail(message: str, code: int = 2):
     print(f"worker error: {message}", file=sys.stderr, flush=True)
@@ -211,6 +214,43 @@ def _fcurves(action):
     return curves
 
 
+def check_job(job: dict, arrays: dict) -> None:
+    """Refuse a job of another format version, or with missing or misshapen arrays."""
+    version = job.get("version")
+    if version != JOB_VERSION:
+        _fail(
+            f"job format version {version!r}, this worker reads version {JOB_VERSION}; "
+            "the main environment and .venv-blender hold different jaxlc checkouts"
+        )
+    for key in ("parts", "materials", "camera", "render"):
+        if key not in job:
+            _fail(f"job.json has no {key!r}")
+    n = len(arrays.get("sun_dir", ()))
+    shapes = {
+        "quaternions": (n, None, 4),
+        "sun_dir": (n, 3),
+        "obs_dir": (n, 3),
+        "irradiance_w_m2": (n,),
+        "camera_distance": (n,),
+    }
+    if job["camera"].get("mode") != "ortho":
+        shapes["fov_rad"] = (n,)
+    for k in range(len(job["parts"])):
+        shapes[f"vertices_{k}"] = (None, 3)
+        shapes[f"faces_{k}"] = (None, 3)
+    for key, shape in shapes.items():
+        a = arrays.get(key)
+        ok = a is not None and a.ndim == len(shape)
+        ok = ok and all(s is None or s == d for s, d in zip(shape, a.shape, strict=True))
+        if not ok:
+            got = "missing" if a is None else f"shape {a.shape}"
+            _fail(f"job array {key!r} is {got}, expected {shape} (None: any)")
+    names = {m["part"] for m in job["materials"]}
+    missing = [p for p in job["parts"] if p not in names]
+    if missing:
+        _fail(f"job part {missing[0]!r} has no material")
+
+
 def main(argv: list[str]) -> int:
     if len(argv) != 1:
         _fail("usage: worker.py JOB_DIR")
@@ -225,6 +265,7 @@ def main(argv: list[str]) -> int:
         _fail("crash requested by the job (test of the failure path)", code=3)
     if job.get("hang_for_test"):
         time.sleep(3600)
+    check_job(job, arrays)
     images = job.get("image_dir") or os.path.join(job_dir, "images")
     os.makedirs(images, exist_ok=True)
     sums, seconds = render_frames(job, arrays, images)

@@ -24,13 +24,13 @@ import matplotlib.pyplot as plt
 import pandas as pd
 
 import jaxlc
-from calibrate.crosscheck import SCENES, _stats, crosscheck_geometry
+from calibrate.crosscheck import abs_mag_stats, crosscheck_geometry
 from calibrate.job import BlenderOptions
 from calibrate.render import blender_render
-from jaxlc.plan import RenderOptions
+from jaxlc.io.tables import write_table
 from jaxlc.plot import save_figure
+from jaxlc.rendering.options import RenderOptions
 from jaxlc.scene import load_scene
-from jaxlc.tables import write_table
 
 REPO = Path(__file__).resolve().parent.parent
 OUT = REPO / "experiments" / "results"
@@ -40,10 +40,10 @@ def main(frames: int = 24) -> pd.DataFrame:
     geo = crosscheck_geometry(frames)
     rows, per = [], []
     for sid in ("S3", "S4", "S5", "S6"):
-        scene = load_scene(REPO / "experiments" / "scenes" / f"{SCENES[sid]}.toml")
+        scene = load_scene(sid)
         j = jaxlc.render(scene, geo, options=RenderOptions(blur="off"))
         b = blender_render(scene, geo, BlenderOptions(resolution=128, samples=64))
-        rows.append(dict(scene=sid, material="ashikhmin-shirley (native)", **_stats(b, j)))
+        rows.append(dict(scene=sid, material="ashikhmin-shirley (native)", **abs_mag_stats(b, j)))
         per.append(
             pd.DataFrame(
                 dict(

@@ -1,7 +1,8 @@
 """Time one full spin fit (multi-start MAP + emcee) of a 1,200-sample S4 light curve.
 
 The light curve is the S4 scene rendered over the demo's real pass (Falcon 9
-R/B 45921 over Mt Stromlo, 1,200 s at 1 Hz), blur off, 0.05 mag noise.
+R/B 45921 over Mt Stromlo, 1,200 s at 1 Hz) as users render it (1 s
+exposures, motion blur: the fit models them the same way), 0.05 mag noise.
 
     python experiments/bench_fit.py [--scene s4_falcon9] [--runs 2] [--cli 2]
 
@@ -29,9 +30,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from sbc_fit import pass_geometry
 
 import jaxlc
-from jaxlc.fit import fit_spin
-from jaxlc.mcmc import FitSettings
-from jaxlc.plan import RenderOptions
+from jaxlc.inference.fit import FitSettings, fit_spin
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -43,9 +42,9 @@ def main(argv=None):
     ap.add_argument("--runs", type=int, default=2, help="fits in this process (1st compiles)")
     ap.add_argument("--cli", type=int, default=2, help="`jaxlc fit` runs, fresh processes")
     a = ap.parse_args(argv)
-    scene = jaxlc.load_scene(REPO / "experiments" / "scenes" / f"{a.scene}.toml")
+    scene = jaxlc.load_scene(a.scene)
     geo = pass_geometry()
-    clean = jaxlc.render(scene, geo, options=RenderOptions(blur="off"))
+    clean = jaxlc.render(scene, geo)
     att = scene.attitude
     rows = []
     for run in range(a.runs):
@@ -96,27 +95,28 @@ def result_row(r: dict, scene_name: str, run, compiles: str, att, **extra) -> di
 
 
 def cli_runs(scene_name: str, clean: pd.DataFrame, geo: pd.DataFrame, runs: int, att) -> list[dict]:
-    """Time ``jaxlc fit`` in fresh processes sharing a compilation cache (empty at first)."""
+    """Time ``jaxlc fit`` in fresh processes sharing a cache (compiled solvers, shadow
+    tables) that is empty at first."""
     import json
     import shutil
     import subprocess
     import time
 
     work = REPO / "build" / "bench_fit"
-    cache = work / "xla-cache"
+    cache = work / "cache"
     shutil.rmtree(cache, ignore_errors=True)
     work.mkdir(parents=True, exist_ok=True)
     lc = clean.copy()
     lc["mag"] = lc["mag"] + 0.05 * np.random.default_rng(100).standard_normal(len(lc))
     jaxlc.write_table(lc, work / "lc.csv")
     jaxlc.write_table(geo, work / "geometry.csv")
-    env = {**os.environ, "JAXLC_XLA_CACHE": str(cache)}
+    env = {**os.environ, "JAXLC_CACHE_DIR": str(cache)}
     exe = Path(sys.executable).with_name("jaxlc")
     rows = []
     for run in range(runs):
         out = work / f"fit{run}"
         cmd = [
-            str(exe), "fit", str(REPO / "experiments" / "scenes" / f"{scene_name}.toml"),
+            str(exe), "fit", scene_name,
             str(work / "lc.csv"), "--geometry", str(work / "geometry.csv"), "-o", str(out),
         ]  # fmt: skip
         t0 = time.perf_counter()

@@ -47,7 +47,7 @@ sys.path.insert(0, str(HERE.parent))
 
 import jaxlc  # noqa: E402
 from jaxlc.dataset import draw_curve, load_config  # noqa: E402
-from jaxlc.tables import write_table  # noqa: E402
+from jaxlc.io.tables import write_table  # noqa: E402
 
 CONFIG = HERE / "configs" / "bulk_standard.toml"
 
@@ -77,29 +77,36 @@ print(json.dumps({"seconds": seconds, "curves": len(ds), "steady": steady,
 
 def class_rates(config, count, repeats=2):
     """Table A: the batched kernel per class, in this process, after a warm-up call."""
-    from jaxlc import bulk_render as R
+    from jaxlc.dataset import bulk as R
+    from jaxlc.dataset.draw import curve_geometry, curve_scene
 
     curves = [draw_curve(config, i) for i in range(count)]
-    geos = [R.curve_geometry(config, c) for c in curves]
+    geos = [curve_geometry(config, c) for c in curves]
+
+    def prepare(j):
+        scene = jaxlc.scene_from_dict(curve_scene(config, curves[j]))
+        return jaxlc.prepare(scene, geos[j].arrays)
+
     rows = []
     for cid, cls in enumerate(config.classes):
         idx = [j for j, c in enumerate(curves) if c.class_id == cid]
         if not idx:
             continue
-        kit = R.class_kit(cls)
-        cs, gs = [curves[j] for j in idx], [geos[j] for j in idx]
-        R.render_class(config, cls, kit, cs[:1], gs[:1])  # compile
+        R.render_class(config, cls, [prepare(idx[0])])  # compile
         best = np.inf
-        for _ in range(repeats):
+        for _ in range(repeats):  # per-curve preparation and the batched kernel
             t0 = time.perf_counter()
-            _, subs = R.render_class(config, cls, kit, cs, gs)
+            prepared = [prepare(j) for j in idx]
+            R.render_class(config, cls, prepared)
             best = min(best, time.perf_counter() - t0)
+        subs = [p.plan.subsamples for p in prepared]
+        kit = prepared[0].object
         rows.append(
             dict(
                 table="A",
                 variant=cls.name,
                 workers="in-process",
-                facets=kit.ordered.n_facets,
+                facets=kit.n_facets,
                 shadows=kit.shadow is not None,
                 curves=len(idx),
                 subsamples_mean=float(np.mean(subs)),

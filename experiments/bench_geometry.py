@@ -33,7 +33,7 @@ from jaxlc.geometry.observe import Visibility, find_passes, observe_chunk  # noq
 from jaxlc.geometry.orbit import propagate_gcrs_m, propagate_teme_km, utc_julian_dates  # noqa: E402
 from jaxlc.geometry.sites import get_site  # noqa: E402
 from jaxlc.geometry.tle import read_tles  # noqa: E402
-from jaxlc.tables import write_table  # noqa: E402
+from jaxlc.io.tables import write_table  # noqa: E402
 
 TLE_FILE = HERE.parent / "data" / "tle" / "celestrak_cubesat_2025-11.txt"
 START = pd.Timestamp("2025-11-20T00:00:00Z")

@@ -42,18 +42,15 @@ sys.path.insert(0, str(HERE))
 from timing import timed, timed_interleaved  # noqa: E402
 
 import jaxlc  # noqa: E402
-from jaxlc import photometry  # noqa: E402
-from jaxlc.attitude import Spin  # noqa: E402
-from jaxlc.brdf import AshikhminShirley, facet_intensity, facet_model  # noqa: E402
-from jaxlc.render import (  # noqa: E402
-    compiler_options,
-    geometry_arrays,
-    light_curve_intensity,
-    space_object,
-    stack_objects,
-    time_chunk,
-)
-from jaxlc.tables import validate_geometry, write_table  # noqa: E402
+from jaxlc.body.brdf import AshikhminShirley  # noqa: E402
+from jaxlc.body.facet_model import facet_intensity, facet_model  # noqa: E402
+from jaxlc.io.tables import write_table  # noqa: E402
+from jaxlc.rendering import photometry  # noqa: E402
+from jaxlc.rendering.kernel import exposure_intensity, stack_objects, time_chunk  # noqa: E402
+from jaxlc.xla import compiler_options  # noqa: E402
+
+#: The instantaneous, unshadowed facet model (what tables A-C time).
+PLAIN = jaxlc.RenderOptions(shadows="off", blur="off")
 
 SCENES = {
     "S2": "s2_sphere",
@@ -87,7 +84,7 @@ def _row(table, scene, facets, triangles, precision, variant, batch, samples, ti
 
 
 def pass_geometry(n_samples: int):
-    geo = jaxlc.synthetic_geometry(
+    return jaxlc.synthetic_geometry(
         duration_s=float(n_samples),
         step_s=1.0,
         phase_start_deg=20,
@@ -95,37 +92,36 @@ def pass_geometry(n_samples: int):
         range_start_m=1.0e6,
         range_end_m=2.0e6,
     )
-    return geometry_arrays(validate_geometry(geo))
 
 
-def single_curves(geo, repeats_s):
+def _kernel():
+    return jax.jit(exposure_intensity, compiler_options=compiler_options())
+
+
+def single_curves(table, repeats_s):
     rows = []
     for sid, name in SCENES.items():
-        scene = jaxlc.load_scene(HERE / "scenes" / f"{name}.toml")
-        exact = scene.attitude.exact_parameters()
         mags = {}
-        for precision, dtype in (("float32", jnp.float32), ("float64", jnp.float64)):
+        for precision in ("float32", "float64"):
             with jax.enable_x64(precision == "float64"):
-                obj = space_object(scene, geo.origin_utc, dtype)
-                times = obj.attitude.times(geo.t_eval_s, **exact)
-                s = jnp.asarray(geo.sun_dir, dtype)
-                v = jnp.asarray(geo.obs_dir, dtype)
-                f = jax.jit(light_curve_intensity, compiler_options=compiler_options())
-                timing = timed(functools.partial(f, obj, times, s, v), repeats_s)
-                i = np.asarray(f(obj, times, s, v), np.float64)
+                p = jaxlc.prepare(name, table, PLAIN, precision)
+                f = _kernel()
+                timing = timed(functools.partial(f, p.object, p.inputs), repeats_s)
+                i = np.asarray(f(p.object, p.inputs), np.float64)
+            g = p.geometry
             mags[precision] = photometry.magnitude(
-                photometry.flux_w_m2(i, geo.irradiance_w_m2, geo.range_m)
+                photometry.flux_w_m2(i, g.irradiance_w_m2, g.range_m)
             )
             rows.append(
                 _row(
                     "A",
                     sid,
-                    obj.model.n_facets,
-                    scene.facets.n_triangles,
+                    p.object.n_facets,
+                    p.scene.facets.n_triangles,
                     precision,
                     "jaxlc",
                     1,
-                    len(geo.t_eval_s),
+                    g.n_rows,
                     timing,
                 )
             )
@@ -140,52 +136,42 @@ def single_curves(geo, repeats_s):
     return rows
 
 
-def random_spins(scene, n, rng, dtype):
-    """n copies of a scene's object with isotropic poles, log-uniform 5–200 s periods."""
-    base = space_object(scene, None, dtype)
+def random_spins(name, table, n, rng):
+    """n preparations of a scene with isotropic poles, log-uniform 5–200 s periods."""
+    scene = jaxlc.load_scene(name)
     pole = rng.normal(size=(n, 3))
     pole /= np.linalg.norm(pole, axis=1, keepdims=True)
-    objs = []
+    out = []
     for k in range(n):
-        spin = Spin.from_degrees(
-            body_axis=rng.normal(size=3),
+        spun = scene.with_spin(
+            period_s=float(np.exp(rng.uniform(np.log(5), np.log(200)))),
             pole_ra_deg=math.degrees(math.atan2(pole[k, 1], pole[k, 0])),
             pole_dec_deg=math.degrees(math.asin(pole[k, 2])),
-            period_s=float(np.exp(rng.uniform(np.log(5), np.log(200)))),
             phase_deg=float(rng.uniform(0, 360)),
-            dtype=dtype,
         )
-        objs.append(jaxlc.SpaceObject(base.model, spin))
-    return objs
+        out.append(jaxlc.prepare(spun, table, PLAIN))
+    return out
 
 
-def bulk(geo, batch, repeats_s):
+def bulk(table, batch, repeats_s):
     rows = []
     rng = np.random.default_rng(0)
-    f = jax.jit(
-        jax.vmap(light_curve_intensity, in_axes=(0, 0, None, None)),
-        compiler_options=compiler_options(),
-    )
-    s = jnp.asarray(geo.sun_dir, jnp.float32)
-    v = jnp.asarray(geo.obs_dir, jnp.float32)
+    f = jax.jit(jax.vmap(exposure_intensity), compiler_options=compiler_options())
     for sid in ("S3", "S4", "S5", "S6"):
-        scene = jaxlc.load_scene(HERE / "scenes" / f"{SCENES[sid]}.toml")
-        objs = random_spins(scene, batch, rng, jnp.float32)
-        stacked = stack_objects(objs)
-        times = jax.tree_util.tree_map(
-            lambda *x: jnp.stack(x), *[o.attitude.times(geo.t_eval_s) for o in objs]
-        )
-        timing = timed(functools.partial(f, stacked, times, s, v), repeats_s)
+        prepared = random_spins(SCENES[sid], table, batch, rng)
+        stacked = stack_objects([p.object for p in prepared])
+        inputs = jax.tree_util.tree_map(lambda *x: np.stack(x), *[p.inputs for p in prepared])
+        timing = timed(functools.partial(f, stacked, inputs), repeats_s)
         rows.append(
             _row(
                 "B",
                 sid,
                 stacked.model.n_facets,
-                scene.facets.n_triangles,
+                prepared[0].scene.facets.n_triangles,
                 "float32",
                 "jaxlc, vmap",
                 batch,
-                len(geo.t_eval_s),
+                prepared[0].geometry.n_rows,
                 timing,
             )
         )
@@ -216,17 +202,16 @@ def _chunked_kernel(model, s, v, chunk):
     return jax.lax.map(lambda a: facet_intensity(model, a[0], a[1]), blocks).reshape(-1)
 
 
-def kernel_variants(geo, repeats_s):
+def kernel_variants(n, repeats_s):
     rows = []
-    n = len(geo.t_eval_s)
     rng = np.random.default_rng(1)
     s = rng.normal(size=(n, 3))
     v = rng.normal(size=(n, 3))
     s = jnp.asarray(s / np.linalg.norm(s, axis=1, keepdims=True), jnp.float32)
     v = jnp.asarray(v / np.linalg.norm(v, axis=1, keepdims=True), jnp.float32)
     brdf = AshikhminShirley(rd=0.5, rs=0.2, nu=100.0, nv=100.0)
-    for sid, mesh in (("S2", "sphere_L4.obj"), ("S4", "falcon9_upper_stage.obj")):
-        facets = jaxlc.facets_from_mesh(jaxlc.load_mesh(HERE.parent / "meshes" / mesh))
+    for sid in ("S2", "S4"):
+        facets = jaxlc.load_scene(SCENES[sid]).facets
         model = facet_model(facets, [brdf] * len(facets.part_names), jnp.float32)
         nf = model.n_facets
         area = jnp.asarray(facets.areas_m2, jnp.float32)
@@ -280,47 +265,35 @@ def kernel_variants(geo, repeats_s):
     return rows
 
 
-def plan_costs(geo, repeats_s, quick):
+def plan_costs(table, repeats_s, quick):
     """D: shadowed / unshadowed (S4, S6) and blurred / sharp (S5) cost, interleaved.
 
     The shadow precomputation is timed with the cache bypassed (a one-off cost
     per mesh and resolution; later renders load the table from disk).
     """
-    from jaxlc.blur import subexposure_times
-    from jaxlc.render import body_intensity  # noqa: F401  (documents what is timed)
-    from jaxlc.shadow import shadow_data
+    from jaxlc.body.shadow import shadow_data
 
     rows = []
-    f = jax.jit(light_curve_intensity, compiler_options=compiler_options())
-    n_samples = len(geo.t_eval_s)
+    f = _kernel()
     for sid, name in (("S4", "s4_falcon9"), ("S6", "s6_boxwing"), ("S5", "s5_cubesat")):
-        scene = jaxlc.load_scene(HERE / "scenes" / f"{name}.toml")
-        exact = scene.attitude.exact_parameters()
-        plain = space_object(scene, geo.origin_utc, jnp.float32)
-        variants, extra = {}, {}
-        s = jnp.asarray(geo.sun_dir, jnp.float32)
-        v = jnp.asarray(geo.obs_dir, jnp.float32)
-        t1 = plain.attitude.times(geo.t_eval_s, **exact)
-        variants["plain"] = functools.partial(f, plain, t1, s, v)
+        plain = jaxlc.prepare(name, table, PLAIN)
+        scene = plain.scene
+        variants, extra = {"plain": functools.partial(f, plain.object, plain.inputs)}, {}
         if not scene.facets.convex:
-            settings = scene.render.shadow
             if not quick:
-                data = shadow_data(
-                    jaxlc.load_mesh(scene.mesh_path), scene.facets, settings, use_cache=False
-                )
+                mesh, facets = scene.body
+                data = shadow_data(mesh, facets, scene.render.shadow, use_cache=False)
                 extra = dict(
                     precompute_s=data.seconds, table_mb=data.nbytes / 1e6, subpoints=data.subpoints
                 )
-            shadowed = space_object(scene, geo.origin_utc, jnp.float32, shadow=settings)
-            variants["shadows"] = functools.partial(f, shadowed, t1, s, v)
+            shadowed = jaxlc.prepare(scene, table, jaxlc.RenderOptions(blur="off"))
+            variants["shadows"] = functools.partial(f, shadowed.object, shadowed.inputs)
         else:
-            from jaxlc.plan import make_plan
-
-            n = make_plan(scene, geo).subsamples
-            tn = plain.attitude.times(subexposure_times(geo.t_start_s, geo.exposure_s, n), **exact)
-            sn = jnp.asarray(np.repeat(geo.sun_dir, n, axis=0), jnp.float32)
-            vn = jnp.asarray(np.repeat(geo.obs_dir, n, axis=0), jnp.float32)
-            variants[f"blur, {n} sub-exposures"] = functools.partial(f, plain, tn, sn, vn)
+            blurred = jaxlc.prepare(scene, table, jaxlc.RenderOptions(shadows="off"))
+            n = blurred.plan.subsamples
+            variants[f"blur, {n} sub-exposures"] = functools.partial(
+                f, blurred.object, blurred.inputs
+            )
         timings = timed_interleaved(variants, repeats_s)
         base = timings["plain"][0]
         for name_v, timing in timings.items():
@@ -328,12 +301,12 @@ def plan_costs(geo, repeats_s, quick):
                 _row(
                     "D",
                     sid,
-                    plain.model.n_facets,
+                    plain.object.n_facets,
                     scene.facets.n_triangles,
                     "float32",
                     name_v,
                     1,
-                    n_samples,
+                    plain.geometry.n_rows,
                     timing,
                     cost_vs_plain=timing[0] / base,
                     **(extra if name_v == "shadows" else {}),
@@ -398,12 +371,12 @@ def main(argv=None) -> int:
     parser.add_argument("--out", type=Path, default=HERE / "results" / "bench_render.csv")
     args = parser.parse_args(argv)
     n_samples, batch, repeats_s = (120, 4, 0.05) if args.quick else (1800, 64, 1.0)
-    geo = pass_geometry(n_samples)
+    table = pass_geometry(n_samples)
     rows = (
-        single_curves(geo, repeats_s)
-        + bulk(geo, batch, repeats_s)
-        + kernel_variants(geo, repeats_s)
-        + plan_costs(geo, repeats_s, args.quick)
+        single_curves(table, repeats_s)
+        + bulk(table, batch, repeats_s)
+        + kernel_variants(n_samples, repeats_s)
+        + plan_costs(table, repeats_s, args.quick)
     )
     df = pd.DataFrame(rows)
     df.attrs.update(

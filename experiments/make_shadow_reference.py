@@ -2,7 +2,7 @@
 
 For scenes S4 and S6: 1,000 random geometries (Sun and observer directions
 drawn isotropically in the body frame, fixed seed), the object's I/E with
-exact self-shadowing (polygon clipping, :mod:`jaxlc.shadow_exact`, float64)
+exact self-shadowing (polygon clipping, :mod:`jaxlc.body.shadow_exact`, float64)
 and without shadows. The CSV's metadata records the SHA-256 of the scene file
 and of the mesh, so a test can tell when the reference is stale.
 
@@ -28,7 +28,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 
 import jaxlc  # noqa: E402
-from jaxlc.tables import write_table  # noqa: E402
+from jaxlc.io.tables import write_table  # noqa: E402
 
 OUT = HERE.parent / "tests" / "data"
 SEED = 20261122
@@ -50,42 +50,42 @@ def geometries(n: int, seed: int = SEED) -> tuple[np.ndarray, np.ndarray]:
 
 def _work(args):
     scene_path, s, v = args
-    from jaxlc.shadow_exact import ExactShadows
-
-    scene = jaxlc.load_scene(scene_path)
-    exact = ExactShadows(jaxlc.load_mesh(scene.mesh_path, scene.scale), scene.facets)
-    return np.stack([exact.fractions(a, b) for a, b in zip(s, v, strict=True)])
-
-
-def reference(scene_name: str, n: int, workers: int) -> pd.DataFrame:
     import jax
     import jax.numpy as jnp
 
-    from jaxlc.brdf import facet_contributions, facet_model
+    from jaxlc.body.facet_model import facet_contributions, facet_model
+    from jaxlc.body.shadow_exact import ExactShadows, exact_intensity
 
-    scene_path = HERE / "scenes" / f"{scene_name}.toml"
+    scene = jaxlc.load_scene(scene_path)
+    exact = ExactShadows(scene.mesh, scene.facets)
+    with jax.enable_x64(True):
+        model = facet_model(scene.facets, scene.materials_for(scene.facets.part_names), jnp.float64)
+        plain = np.asarray(facet_contributions(model, jnp.asarray(s), jnp.asarray(v))).sum(axis=1)
+    return exact_intensity(model, exact, s, v), plain
+
+
+def reference(scene_name: str, n: int, workers: int) -> pd.DataFrame:
+    scene_path = jaxlc.scene_path(scene_name)
     scene = jaxlc.load_scene(scene_path)
     s, v = geometries(n)
     t0 = time.perf_counter()
     parts = np.array_split(np.arange(n), max(1, workers * 8))
     with mp.get_context("fork").Pool(workers) as pool:
-        fracs = pool.map(_work, [(scene_path, s[p], v[p]) for p in parts])
-    frac = np.concatenate(fracs)
-    with jax.enable_x64(True):
-        model = facet_model(scene.facets, scene.materials_for(scene.facets.part_names), jnp.float64)
-        terms = np.asarray(facet_contributions(model, jnp.asarray(s), jnp.asarray(v)))
+        done = pool.map(_work, [(scene_path, s[p], v[p]) for p in parts])
+    exact = np.concatenate([d[0] for d in done])
+    plain = np.concatenate([d[1] for d in done])
     df = pd.DataFrame(
         {
             **{f"sun_{c}": s[:, k] for k, c in enumerate("xyz")},
             **{f"obs_{c}": v[:, k] for k, c in enumerate("xyz")},
-            "i_exact_m2_sr": np.sum(terms * frac, axis=1),
-            "i_unshadowed_m2_sr": terms.sum(axis=1),
+            "i_exact_m2_sr": exact,
+            "i_unshadowed_m2_sr": plain,
         }
     )
     df.attrs.update(
         {
             "generator": "experiments/make_shadow_reference.py",
-            "method": "exact polygon clipping (jaxlc.shadow_exact), float64",
+            "method": "exact polygon clipping (jaxlc.body.shadow_exact), float64",
             "scene": scene_path.name,
             "scene_sha256": sha256(scene_path),
             "mesh": scene.mesh_path.name,

@@ -38,37 +38,26 @@ sys.path.insert(0, str(HERE.parent / "tests"))  # the analytic references live t
 from timing import timed  # noqa: E402
 
 import jaxlc  # noqa: E402
-from jaxlc.brdf import Lambert, facet_intensity, facet_model  # noqa: E402
-from jaxlc.plan import RenderOptions  # noqa: E402
-from jaxlc.render import (  # noqa: E402
-    body_intensity,
-    compiler_options,
-    geometry_arrays,
-    light_curve_intensity,
-    space_object,
-)
-from jaxlc.shadow import ShadowSettings, shadow_data  # noqa: E402
-from jaxlc.tables import validate_geometry, write_table  # noqa: E402
+from jaxlc.body.brdf import Lambert  # noqa: E402
+from jaxlc.body.facet_model import facet_intensity, facet_model  # noqa: E402
+from jaxlc.body.shadow import ShadowSettings, shadow_data  # noqa: E402
+from jaxlc.io.tables import write_table  # noqa: E402
+from jaxlc.rendering.kernel import body_intensity, exposure_intensity  # noqa: E402
+from jaxlc.rendering.options import RenderOptions  # noqa: E402
+from jaxlc.scene import DATA as PACKAGE_DATA  # noqa: E402
+from jaxlc.xla import compiler_options  # noqa: E402
 
-SCENES = HERE / "scenes"
 DATA = HERE.parent / "tests" / "data"
 
 
-def pass_arrays(n=1800):
-    geo = jaxlc.synthetic_geometry(duration_s=float(n), phase_start_deg=10, phase_end_deg=140)
-    return geometry_arrays(validate_geometry(geo))
+def pass_table(n=1800):
+    return jaxlc.synthetic_geometry(duration_s=float(n), phase_start_deg=10, phase_end_deg=140)
 
 
-def curve_time(obj, scene, geo, subsamples=1, repeats_s=0.5):
-    """Seconds for one light curve of the pass with n sub-exposures."""
-    from jaxlc.blur import subexposure_times
-
-    t = subexposure_times(geo.t_start_s, geo.exposure_s, subsamples)
-    times = obj.attitude.times(t, **scene.attitude.exact_parameters())
-    s = jnp.asarray(np.repeat(geo.sun_dir, subsamples, axis=0), jnp.float32)
-    v = jnp.asarray(np.repeat(geo.obs_dir, subsamples, axis=0), jnp.float32)
-    f = jax.jit(light_curve_intensity, compiler_options=compiler_options())
-    return timed(lambda: f(obj, times, s, v), repeats_s)[0]
+def curve_time(prepared, repeats_s=0.5):
+    """Seconds for one light curve of a prepared render (the kernel entry alone)."""
+    f = jax.jit(exposure_intensity, compiler_options=compiler_options())
+    return timed(lambda: f(prepared.object, prepared.inputs), repeats_s)[0]
 
 
 def lambert_sphere_error(facets) -> float:
@@ -84,14 +73,15 @@ def lambert_sphere_error(facets) -> float:
     return float(np.max(np.abs(2.5 * np.log10(lambert_sphere_intensity(alpha, 1.0, 0.5) / got))))
 
 
-def facet_count_rows(geo, repeats_s):
+def facet_count_rows(table, repeats_s):
     rows = []
+    geo = jaxlc.geometry_arrays(jaxlc.validate_geometry(table))
     s = jnp.asarray(geo.sun_dir, jnp.float32)
     v = jnp.asarray(geo.obs_dir, jnp.float32)
     f = jax.jit(facet_intensity, compiler_options=compiler_options())
     for level in range(1, 6):
         facets = jaxlc.facets_from_mesh(
-            jaxlc.load_mesh(HERE.parent / "meshes" / f"sphere_L{level}.obj")
+            jaxlc.load_mesh(PACKAGE_DATA / "meshes" / f"sphere_L{level}.obj")
         )
         model = facet_model(facets, [Lambert(rd=0.5)], jnp.float32)
         sec = timed(lambda m=model: f(m, s, v), repeats_s)[0]
@@ -111,13 +101,13 @@ def facet_count_rows(geo, repeats_s):
     return rows
 
 
-def shadow_rows(geo, repeats_s, quick):
+def shadow_rows(table, repeats_s, quick):
     rows = []
     grids = (8, 16) if quick else (8, 16, 32, 64)
     spacings = (0.02,) if quick else (0.04, 0.02, 0.01, 0.005)
     for sid, name in (("S6", "s6_boxwing"), ("S4", "s4_falcon9")):
-        scene = jaxlc.load_scene(SCENES / f"{name}.toml")
-        mesh = jaxlc.load_mesh(scene.mesh_path)
+        scene = jaxlc.load_scene(name)
+        mesh, facets = scene.body
         ref = jaxlc.read_table(DATA / f"shadow_reference_{name.split('_')[0]}.csv")
         if quick:
             ref = ref.iloc[:200]
@@ -125,8 +115,9 @@ def shadow_rows(geo, repeats_s, quick):
         v = jnp.asarray(ref[["obs_x", "obs_y", "obs_z"]].to_numpy(), jnp.float32)
         exact = ref["i_exact_m2_sr"].to_numpy()
         lit = exact > 0
-        plain = space_object(scene, None, jnp.float32, shadow=None)
-        base = curve_time(plain, scene, geo, 1, repeats_s)
+        base = curve_time(
+            jaxlc.prepare(scene, table, RenderOptions(shadows="off", blur="off")), repeats_s
+        )
         err = np.abs(2.5 * np.log10(ref["i_unshadowed_m2_sr"].to_numpy()[lit] / exact[lit]))
         rows.append(
             dict(
@@ -147,15 +138,15 @@ def shadow_rows(geo, repeats_s, quick):
         settings = [ShadowSettings(grid=g, spacing=sp) for g in grids for sp in spacings]
         settings.append(ShadowSettings(grid=32, spacing=0.01, interpolation="nearest"))
         for st in settings:
-            data = shadow_data(mesh, scene.facets, st)
+            data = shadow_data(mesh, facets, st)
             if data.from_cache and not quick:  # trace afresh to time the precomputation
-                data.path.unlink()
-                data = shadow_data(mesh, scene.facets, st)
+                data = shadow_data(mesh, facets, st, use_cache=False)
             pre = data.seconds if not data.from_cache else float("nan")
-            obj = space_object(scene, None, jnp.float32, shadow=st)
+            shadowed = jaxlc.prepare(scene, table, RenderOptions(shadow=st, blur="off"))
+            obj = shadowed.object
             approx = np.asarray(jax.jit(body_intensity)(obj, s, v), np.float64)
             err = np.abs(2.5 * np.log10(np.maximum(approx[lit], 1e-300) / exact[lit]))
-            sec = curve_time(obj, scene, geo, 1, repeats_s)
+            sec = curve_time(shadowed, repeats_s)
             rows.append(
                 dict(
                     knob="shadows",
@@ -187,20 +178,19 @@ def blur_rows(repeats_s, quick):
     geo_table = jaxlc.synthetic_geometry(
         duration_s=duration, phase_start_deg=10, phase_end_deg=140, exposure_s=1.0
     )
-    geo = geometry_arrays(validate_geometry(geo_table))
     for sid, name in (("S5", "s5_cubesat"), ("S4", "s4_falcon9"), ("S6", "s6_boxwing")):
-        scene = jaxlc.load_scene(SCENES / f"{name}.toml")
+        scene = jaxlc.load_scene(name)
         dense = jaxlc.render(scene, geo_table, options=RenderOptions(subsamples=256))
         keep = np.isfinite(dense["mag"]) & (dense["mag"] < np.nanmedian(dense["mag"]) + 5)
         auto_plan = jaxlc.render(scene, geo_table).attrs["plan"]
         n_auto = int(auto_plan.split("|")[3].split()[0])
-        shadow = scene.render.shadow if not scene.facets.convex else None
-        obj = space_object(scene, None, jnp.float32, shadow=shadow)
-        base = curve_time(obj, scene, geo, 1, repeats_s)
+        base = curve_time(jaxlc.prepare(scene, geo_table, RenderOptions(blur="off")), repeats_s)
         for n in sorted({1, 2, 4, 8, 16, 32, 64, n_auto}):
             lc = jaxlc.render(scene, geo_table, options=RenderOptions(subsamples=n))
             dm = np.abs(lc["mag"][keep] - dense["mag"][keep]).to_numpy()
-            sec = curve_time(obj, scene, geo, n, repeats_s)
+            sec = curve_time(
+                jaxlc.prepare(scene, geo_table, RenderOptions(subsamples=n)), repeats_s
+            )
             rows.append(
                 dict(
                     knob="blur",
@@ -284,10 +274,10 @@ def main(argv=None) -> int:
     parser.add_argument("--out", type=Path, default=HERE / "results" / "pareto.csv")
     args = parser.parse_args(argv)
     repeats_s = 0.1 if args.quick else 0.5
-    geo = pass_arrays(300 if args.quick else 1800)
+    table = pass_table(300 if args.quick else 1800)
     rows = (
-        facet_count_rows(geo, repeats_s)
-        + shadow_rows(geo, repeats_s, args.quick)
+        facet_count_rows(table, repeats_s)
+        + shadow_rows(table, repeats_s, args.quick)
         + blur_rows(repeats_s, args.quick)
     )
     df = pd.DataFrame(rows)

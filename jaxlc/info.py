@@ -18,13 +18,13 @@ def info() -> dict:
     """A dict of everything :func:`print_info` shows."""
     import jax
 
-    import jaxlc
     from calibrate.environment import find_blender_environment
+    from jaxlc.io.provenance import jaxlc_version
 
     blender = find_blender_environment()
     dask_ok = all(importlib.util.find_spec(m) is not None for m in ("dask", "distributed"))
     return {
-        "jaxlc": jaxlc.__version__,
+        "jaxlc": jaxlc_version(),
         "python": platform.python_version(),
         "versions": {
             d: _version(d)

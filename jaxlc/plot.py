@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from jaxlc.files import atomic_output
+from jaxlc.io.files import atomic_output
 
 
 def save_figure(fig, path: str | Path, dpi: int = 120) -> Path:
@@ -69,7 +69,7 @@ def plot_period(result, t_s, mag, path: str | Path, title: str | None = None) ->
     """Periodogram (power against period) above the curve folded at the decided period.
 
     Args:
-        result: a :class:`jaxlc.period.PeriodResult`.
+        result: a :class:`jaxlc.inference.period.PeriodResult`.
         t_s, mag: (N,) the samples that were analysed (s, mag).
     """
     import matplotlib
@@ -77,7 +77,7 @@ def plot_period(result, t_s, mag, path: str | Path, title: str | None = None) ->
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from jaxlc.period import fold_phase
+    from jaxlc.inference.period import fold_phase
 
     fig, (ax, ax2) = plt.subplots(2, 1, figsize=(8, 7))
     period = 1.0 / result.frequency_hz

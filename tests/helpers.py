@@ -15,8 +15,9 @@ from pathlib import Path
 import numpy as np
 
 REPO = Path(__file__).resolve().parent.parent
-MESHES = REPO / "meshes"
-SCENES = REPO / "experiments" / "scenes"
+#: The shipped meshes and standard scenes (package data).
+MESHES = REPO / "jaxlc" / "data" / "meshes"
+SCENES = REPO / "jaxlc" / "data" / "scenes"
 DATA = Path(__file__).resolve().parent / "data"
 
 

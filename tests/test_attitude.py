@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from helpers import rotation_matrix_from_quaternion, unit
 
-from jaxlc.attitude import (
+from jaxlc.body.attitude import (
     Fixed,
     Spin,
     phase_at_offset_deg,

@@ -7,8 +7,9 @@ import pytest
 from helpers import SCENES
 
 import jaxlc
-from jaxlc.blur import choose_subsamples, direction_rate_rad_s, subexposure_times
-from jaxlc.plan import RenderOptions
+from jaxlc.rendering.blur import choose_subsamples, direction_rate_rad_s
+from jaxlc.rendering.exposures import exposure_instants, quadrature_nodes
+from jaxlc.rendering.options import RenderOptions
 
 
 def _compare(a, b):
@@ -57,7 +58,7 @@ def test_adaptive_blur_of_the_other_spinners(name):
 
 def test_slow_spin_needs_one_subexposure_and_equals_no_blur(write_scene):
     """S3's cylinder tumbling once an hour, over a slow pass: blur skipped, exactly."""
-    text = (SCENES / "s3_cylinder.toml").read_text().replace('"meshes/', '"@MESHES@/')
+    text = (SCENES / "s3_cylinder.toml").read_text().replace('"../meshes/', '"@MESHES@/')
     scene = jaxlc.load_scene(write_scene(text.replace("period_s = 82.6", "period_s = 3600.0")))
     geo = jaxlc.synthetic_geometry(duration_s=1000, phase_start_deg=40, phase_end_deg=50)
     auto = jaxlc.render(scene, geo)
@@ -79,8 +80,24 @@ def test_subsamples_proportional_to_the_sweep():
 
 def test_subexposure_midpoints_respect_readout_gaps():
     """Exposures of 0.4 s every 1 s: sub-exposures stay inside [t, t + 0.4]."""
-    t = subexposure_times(np.array([0.0, 1.0]), np.array([0.4, 0.4]), 4)
-    np.testing.assert_allclose(t, [0.05, 0.15, 0.25, 0.35, 1.05, 1.15, 1.25, 1.35])
+    geo = jaxlc.geometry_from_positions(
+        [0.0, 1.0], np.zeros((2, 3)), [[1e11, 0, 0]] * 2, [[0, 1e6, 0]] * 2, exposure_s=0.4
+    )
+    e = exposure_instants(geo, [0, 1], 4)
+    np.testing.assert_allclose(e.t_s, [0.05, 0.15, 0.25, 0.35, 1.05, 1.15, 1.25, 1.35])
+    np.testing.assert_array_equal(e.row, [0, 0, 0, 0, 1, 1, 1, 1])
+    np.testing.assert_allclose(e.weight, 0.25)
+
+
+@pytest.mark.parametrize("n", [1, 2, 5, 16])
+def test_quadratures_integrate_linear_functions_exactly(n):
+    """Midpoints and end points with trapezoid weights: weights sum to 1 and the
+    mean of a linear function over the exposure is exact."""
+    for rule in ("midpoint", "endpoints"):
+        frac, w = quadrature_nodes(n, rule)
+        assert w.sum() == pytest.approx(1.0) and np.all((frac >= 0) & (frac <= 1))
+        assert np.sum(w * (3.0 * frac + 1.0)) == pytest.approx(2.5)
+    assert list(quadrature_nodes(3, "endpoints")[0]) == [0.0, 0.5, 1.0]
 
 
 def test_direction_rate():

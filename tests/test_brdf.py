@@ -23,8 +23,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import jaxlc
-from jaxlc.brdf import ASGlossy, AshikhminShirley, Lambert, facet_intensity, facet_model
-from jaxlc.mesh import facets_from_mesh, load_mesh
+from jaxlc.body.brdf import ASGlossy, AshikhminShirley, Lambert
+from jaxlc.body.facet_model import facet_intensity, facet_model
+from jaxlc.body.mesh import facets_from_mesh, load_mesh
 
 
 def _intensity64(model_fn, s, v):
@@ -100,7 +101,7 @@ def _random_facets(rng, n):
 
 def _model_from_arrays(normals, areas, brdf, dtype):
     """A FacetModel for free-floating facets (one part), via the public builder."""
-    from jaxlc.mesh import Facets
+    from jaxlc.body.mesh import Facets
 
     f = Facets(
         normals=normals,

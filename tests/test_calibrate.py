@@ -8,15 +8,15 @@ import math
 
 import numpy as np
 import pytest
-from helpers import SCENES, lambert_sphere_intensity, rotation_matrix_from_quaternion
+from helpers import REPO, SCENES, lambert_sphere_intensity, rotation_matrix_from_quaternion
 
 import jaxlc
 from calibrate.environment import find_blender_environment
 from calibrate.job import BlenderOptions, anisotropy, matrix_to_quaternion, roughness, write_job
 from calibrate.render import blender_render
 from calibrate.runner import BlenderError, run_worker
-from jaxlc.brdf import ASGlossy
-from jaxlc.plan import RenderOptions
+from jaxlc.body.brdf import ASGlossy
+from jaxlc.rendering.options import RenderOptions
 from jaxlc.scene import MaterialSpec
 
 needs_blender = pytest.mark.skipif(
@@ -91,7 +91,7 @@ def test_plate_calibration_both_ways_agree_with_facet_model():
     assert np.abs(seed["mag"] - ff["mag"])[ok].max() <= 0.01
     assert np.abs(seed["mag"] - ortho["mag"])[ok].max() <= 0.01
     assert "m_ff -5.497" in seed.attrs["seed_calibration"]  # the 1 m² plate at 10 km
-    assert list(ortho.columns[:8]) == list(jaxlc.tables.LIGHTCURVE_COLUMNS)
+    assert list(ortho.columns[:8]) == list(jaxlc.io.tables.LIGHTCURVE_COLUMNS)
 
 
 @needs_blender
@@ -101,13 +101,13 @@ def test_lambert_sphere_against_analytic_phase_law():
     scene = jaxlc.load_scene(SCENES / "s2_sphere.toml")
     geo = _geometry(n=8, phase_start_deg=0, phase_end_deg=150, sun_dec_deg=0, tilt_deg=0)
     lc = blender_render(scene, geo, BlenderOptions(resolution=96, samples=16))
-    table = jaxlc.tables.validate_geometry(geo)
-    from jaxlc.render import geometry_arrays
+    table = jaxlc.io.tables.validate_geometry(geo)
+    from jaxlc.rendering.observation import geometry_arrays
 
     g = geometry_arrays(table)
     law = lambert_sphere_intensity(np.radians(g.phase_angle_deg), 1.0, 0.5)
-    analytic = jaxlc.photometry.magnitude(
-        jaxlc.photometry.flux_w_m2(law, g.irradiance_w_m2, g.range_m)
+    analytic = jaxlc.rendering.photometry.magnitude(
+        jaxlc.rendering.photometry.flux_w_m2(law, g.irradiance_w_m2, g.range_m)
     )
     assert np.abs(lc["mag"] - analytic).max() <= 0.015
 
@@ -252,3 +252,30 @@ def test_cli_calibrate_render(tmp_path):
         cwd=tmp_path,
     )
     assert bad.returncode == 1 and "camera = 'fisheye'" in bad.stderr
+
+
+def test_worker_reads_the_job_version_the_main_side_writes():
+    """The worker (bpy + numpy only, no jaxlc) states its own format version: the
+    same number :mod:`calibrate.job` writes."""
+    import re
+
+    from calibrate.job import JOB_VERSION
+
+    src = (REPO / "calibrate" / "worker.py").read_text()
+    assert re.search(r"^JOB_VERSION = (\d+)$", src, flags=re.M).group(1) == str(JOB_VERSION)
+
+
+@needs_blender
+def test_worker_refuses_another_version_and_misshapen_arrays(tmp_path):
+    import json
+
+    job = _tiny_job(tmp_path / "a")
+    spec = json.loads((job / "job.json").read_text())
+    (job / "job.json").write_text(json.dumps({**spec, "version": 1}))
+    with pytest.raises(BlenderError, match="job format version 1, this worker reads version 2"):
+        run_worker(job, timeout_s=60)
+    job = _tiny_job(tmp_path / "b")
+    arrays = dict(np.load(job / "arrays.npz"))
+    np.savez(job / "arrays.npz", **{**arrays, "sun_dir": arrays["sun_dir"][:, :2]})
+    with pytest.raises(BlenderError, match=r"job array 'sun_dir' is shape \(1, 2\)"):
+        run_worker(job, timeout_s=60)

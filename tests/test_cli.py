@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from helpers import REPO, SCENES
+from helpers import MESHES, REPO, SCENES
 
 import jaxlc
 from jaxlc.cli import main
@@ -84,7 +84,10 @@ def test_float64_option(tmp_path):
 )
 def test_errors_are_one_line_without_traceback(tmp_path, args, message):
     (tmp_path / "bad.toml").write_text(
-        (SCENES / "s5_cubesat.toml").read_text().replace("period_s = 10.0", "period_s = -1.0")
+        (SCENES / "s5_cubesat.toml")
+        .read_text()
+        .replace("period_s = 10.0", "period_s = -1.0")
+        .replace('"../meshes/', f'"{MESHES}/')
     )
     assert (
         main(["geometry", "synthetic", "-o", str(tmp_path / "geo.csv"), "--duration-s", "5"]) == 0

@@ -24,8 +24,8 @@ from helpers import MESHES, REPO, SCENES
 
 import jaxlc
 import jaxlc.dataset as dataset
-from jaxlc import photometry
 from jaxlc.dataset import DatasetError, config_from_dict, load_config
+from jaxlc.rendering import photometry
 
 pytest.importorskip("zarr")
 
@@ -177,7 +177,7 @@ def test_passes_config_errors():
 
 
 def test_curves_and_shards_are_pure_functions(config_path, reference):
-    from jaxlc.generate import render_shard
+    from jaxlc.dataset.shards import render_shard
 
     cfg = load_config(config_path)
     fewer = dataclasses_replace(cfg, count=5)
@@ -287,12 +287,12 @@ def test_other_config_refuses_to_resume(config_path, reference, tmp_path):
 # Labels against an independent re-render
 
 
-def _scene_from_labels(ds, i, scale=None):
+def _scene_from_labels(ds, i):
     """A scene dict written from the label columns (not with Dataset.scene)."""
     row = ds.labels.loc[i]
     cls = ds.attrs["classes"][int(row["class_id"])]
     return {
-        "object": {"mesh": row["mesh"], "scale": float(row["scale"] if scale is None else scale)},
+        "object": {"mesh": row["mesh"], "scale": float(row["scale"])},
         "material": json.loads(row["materials"]),
         "attitude": {
             "model": "spin",
@@ -336,20 +336,10 @@ def test_labels_reproduce_the_stored_curves(reference):
         row = labels.loc[i]
         geo = _synthetic_from_labels(reference, i)
         stored = reference["mag"][i].astype(np.float64)
-        if row["shadows"]:
-            # Shadow tables are traced per mesh scale; tracing at another scale
-            # flips a few visibility bits (float32 ray casting, ~1e-3 mag). The
-            # dataset uses the class's table and I/E ∝ scale² (uniform scaling):
-            # render at scale 1 and scale the flux, then check the traced-at-scale
-            # render loosely.
-            lc = jaxlc.render(jaxlc.scene_from_dict(_scene_from_labels(reference, i, 1.0)), geo)
-            flux = lc["flux_w_m2"].to_numpy() * float(row["scale"]) ** 2
-            mag = photometry.magnitude(flux)
-            own = jaxlc.render(jaxlc.scene_from_dict(_scene_from_labels(reference, i)), geo)
-            assert np.nanmax(np.abs(own["mag"].to_numpy() - stored)) < 0.05
-        else:
-            lc = jaxlc.render(jaxlc.scene_from_dict(_scene_from_labels(reference, i)), geo)
-            mag = lc["mag"].to_numpy()
+        # Any size of a shape shares its shadow table (the scale is an area
+        # factor), so a curve re-renders exactly, shadowed or not.
+        lc = jaxlc.render(jaxlc.scene_from_dict(_scene_from_labels(reference, i)), geo)
+        mag = lc["mag"].to_numpy()
         assert _plan_subsamples(lc) == row["subsamples"]
         np.testing.assert_array_equal(np.isfinite(mag), np.isfinite(stored))
         np.testing.assert_allclose(stored, mag, atol=1e-4, rtol=0)
@@ -397,7 +387,7 @@ def test_real_passes_reproduce_from_tle_and_site(tmp_path):
         geo = geometry_table(
             tles[int(row["norad_id"])],
             get_site(row["site"]),
-            jaxlc.tables.parse_utc([row["utc_start"]])[0],
+            jaxlc.io.utc.parse_utc([row["utc_start"]])[0],
             60.0,
             1.0,
             1.0,

@@ -9,9 +9,10 @@ import pytest
 import trimesh
 from helpers import MESHES, random_unit_vectors
 
-from jaxlc.brdf import AshikhminShirley, Lambert, facet_intensity, facet_model
+from jaxlc.body.brdf import AshikhminShirley, Lambert
+from jaxlc.body.facet_model import facet_intensity, facet_model, tangent_frame
+from jaxlc.body.mesh import MeshWarning, TriangleMesh, facets_from_mesh, load_mesh
 from jaxlc.errors import MeshError
-from jaxlc.mesh import MeshWarning, TriangleMesh, facets_from_mesh, load_mesh, tangent_frame
 
 SHIPPED = {
     "plate.obj": (("plate",), True),

@@ -217,10 +217,10 @@ def test_passes_split_across_time_chunks_are_merged(falcon, monkeypatch):
 def test_geometry_table_contract_and_render(falcon):
     tle, site = falcon[45921], get_site("mt-stromlo")
     df = geometry_table(tle, site, pd.Timestamp("2020-08-10T18:00:00Z"), 600.0, 1.0, 1.0)
-    clean = jaxlc.tables.validate_geometry(df)
+    clean = jaxlc.io.tables.validate_geometry(df)
     assert len(clean) == 600 and clean.attrs["frame"] == "GCRS"
     assert clean["visible"].all() and (clean["sgp4_error"] == 0).all()
-    assert list(clean.columns[:16]) == list(jaxlc.tables.GEOMETRY_COLUMNS)
+    assert list(clean.columns[:16]) == list(jaxlc.io.tables.GEOMETRY_COLUMNS)
     # geocentric ranges: object ~GTO, Sun ~1 AU, site on the Earth's surface
     assert 6.0e6 < np.linalg.norm(clean[["obs_x_m", "obs_y_m", "obs_z_m"]], axis=1).mean() < 6.4e6
     assert (
@@ -228,7 +228,7 @@ def test_geometry_table_contract_and_render(falcon):
         < np.linalg.norm(clean[["sun_x_m", "sun_y_m", "sun_z_m"]], axis=1).mean()
         < 1.02 * AU
     )
-    lc = jaxlc.render(DATA.parent.parent / "experiments/scenes/s4_falcon9.toml", clean)
+    lc = jaxlc.render("s4_falcon9", clean)
     assert lc["mag"].notna().all()
     assert lc.attrs["frame"] == "GCRS"
 
@@ -245,7 +245,7 @@ def test_sgp4_failures_are_flagged_rows():
     assert df.loc[failed, "rso_x_m"].isna().all() and not df.loc[failed, "visible"].any()
     first = int(np.flatnonzero(failed)[0])
     assert 50 * 60 <= df["t_s"][first] <= 60 * 60  # decays 52 min after epoch
-    lc = jaxlc.render(DATA.parent.parent / "experiments/scenes/s5_cubesat.toml", df)
+    lc = jaxlc.render("s5_cubesat", df)
     assert lc.loc[failed, "mag"].isna().all()
 
 
@@ -256,7 +256,7 @@ def test_empty_window_gives_clear_message_and_valid_tables(falcon):
     assert not df["visible"].any()
     message = explain_invisible(df, Visibility())
     assert "no visible sample among 60" in message and "Sun at or above -6° in 60" in message
-    jaxlc.tables.validate_geometry(df)
+    jaxlc.io.tables.validate_geometry(df)
     passes = find_passes([tle], site, day, 600.0, 10.0)
     assert passes.empty and list(passes.columns)[:3] == ["norad_id", "name", "start_utc"]
 

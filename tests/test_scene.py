@@ -6,7 +6,7 @@ import pytest
 from helpers import SCENES
 
 import jaxlc
-from jaxlc.brdf import AshikhminShirley, Lambert
+from jaxlc.body.brdf import AshikhminShirley, Lambert
 from jaxlc.errors import SceneError
 
 BASE = """
@@ -155,3 +155,30 @@ def test_mesh_relative_to_scene_file(tmp_path):
     text = BASE.replace('"@MESHES@/falcon9_upper_stage.obj"', '"sat.obj"')
     (tmp_path / "s.toml").write_text(text)
     assert jaxlc.load_scene(tmp_path / "s.toml").mesh_path == (tmp_path / "sat.obj").resolve()
+
+
+def test_files_are_never_looked_up_in_the_working_directory(tmp_path, monkeypatch):
+    """A mesh next to the working directory but not next to the scene file is not
+    found; a bare shipped mesh name and a shipped scene name are (package data)."""
+    import shutil
+
+    from helpers import MESHES
+
+    work, scenes = tmp_path / "work", tmp_path / "scenes"
+    (work / "meshes").mkdir(parents=True)
+    scenes.mkdir()
+    shutil.copy(MESHES / "cubesat_3u.obj", work / "meshes" / "mine.obj")
+    monkeypatch.chdir(work)
+    (scenes / "a.toml").write_text(
+        BASE.replace('"@MESHES@/falcon9_upper_stage.obj"', '"meshes/mine.obj"')
+    )
+    with pytest.raises(SceneError, match=r"mine\.obj' not found"):
+        jaxlc.load_scene(scenes / "a.toml")
+    (scenes / "b.toml").write_text(
+        BASE.replace('"@MESHES@/falcon9_upper_stage.obj"', '"cubesat_3u.obj"')
+    )
+    assert jaxlc.load_scene(scenes / "b.toml").mesh_path == (MESHES / "cubesat_3u.obj").resolve()
+    for name in ("S4", "s4_falcon9", "s4_falcon9.toml"):
+        assert jaxlc.load_scene(name).mesh_path.name == "falcon9_upper_stage.obj"
+    with pytest.raises(SceneError, match="shipped scenes: S1"):
+        jaxlc.load_scene("s9_nothing")

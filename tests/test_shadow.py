@@ -12,20 +12,19 @@ import pytest
 from helpers import DATA, REPO, SCENES, random_unit_vectors, unit
 
 import jaxlc
-from jaxlc.mesh import TriangleMesh, facets_from_mesh
-from jaxlc.plan import RenderOptions
-from jaxlc.render import body_intensity, space_object
-from jaxlc.shadow import (
-    ShadowSettings,
+from jaxlc.body.mesh import TriangleMesh, facets_from_mesh
+from jaxlc.body.octahedral import (
     grid_corners,
     nearest_node,
     octahedral_directions,
     octahedral_encode,
-    shadow_data,
-    shadow_table,
-    sub_points,
 )
-from jaxlc.shadow_exact import ExactShadows
+from jaxlc.body.raycast import sub_points
+from jaxlc.body.shadow import ShadowSettings, shadow_data, shadow_table
+from jaxlc.body.shadow_exact import ExactShadows
+from jaxlc.rendering.kernel import body_intensity
+from jaxlc.rendering.options import RenderOptions
+from jaxlc.rendering.prepare import space_object
 
 REGENERATE = "regenerate with: python experiments/make_shadow_reference.py"
 
@@ -71,23 +70,21 @@ def test_approximation_meets_accuracy_targets(name):
 
 def test_reference_data_is_reproduced_by_the_twin():
     """The committed numbers are what the exact twin computes today (a few rows)."""
-    from jaxlc.brdf import facet_contributions, facet_model
+    from jaxlc.body.facet_model import facet_model
+    from jaxlc.body.shadow_exact import exact_intensity
 
     for name, rows in (("s6_boxwing", 25), ("s4_falcon9", 2)):
         ref = jaxlc.read_table(DATA / f"shadow_reference_{name.split('_')[0]}.csv").iloc[:rows]
         scene = jaxlc.load_scene(SCENES / f"{name}.toml")
-        twin = ExactShadows(jaxlc.load_mesh(scene.mesh_path), scene.facets)
+        twin = ExactShadows(scene.mesh, scene.facets)
         s = ref[["sun_x", "sun_y", "sun_z"]].to_numpy()
         v = ref[["obs_x", "obs_y", "obs_z"]].to_numpy()
         with jax.enable_x64(True):
             model = facet_model(
                 scene.facets, scene.materials_for(scene.facets.part_names), jnp.float64
             )
-            terms = np.asarray(facet_contributions(model, jnp.asarray(s), jnp.asarray(v)))
-        frac = np.stack([twin.fractions(a, b) for a, b in zip(s, v, strict=True)])
-        np.testing.assert_allclose(
-            np.sum(terms * frac, 1), ref["i_exact_m2_sr"], rtol=1e-9, atol=1e-15
-        )
+        got = exact_intensity(model, twin, s, v)
+        np.testing.assert_allclose(got, ref["i_exact_m2_sr"], rtol=1e-9, atol=1e-15)
 
 
 # ---------------------------------------------------------------------------
@@ -128,7 +125,7 @@ def test_exact_twin_roof_shadow(dx, dy):
     # the approximation represents the partial shadow too
     fine = ShadowSettings(grid=64, spacing=0.005, max_subpoints=1024)
     data = shadow_data(mesh, facets, fine, use_cache=False)
-    from jaxlc.shadow import lit_seen_fraction
+    from jaxlc.body.shadow import lit_seen_fraction
 
     row = int(np.flatnonzero(data.facet_ids == floor_up)[0])
     approx = lit_seen_fraction(

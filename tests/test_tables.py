@@ -9,8 +9,14 @@ from helpers import SCENES
 
 import jaxlc
 from jaxlc.errors import TableError
-from jaxlc.files import atomic_output
-from jaxlc.tables import GEOMETRY_COLUMNS, read_geometry, read_table, validate_geometry, write_table
+from jaxlc.io.files import atomic_output
+from jaxlc.io.tables import (
+    GEOMETRY_COLUMNS,
+    read_geometry,
+    read_table,
+    validate_geometry,
+    write_table,
+)
 
 
 @pytest.mark.parametrize("ext", ["csv", "parquet"])
@@ -32,7 +38,7 @@ def test_csv_has_frame_comment(tmp_path):
 
 def test_optional_columns_get_defaults(tmp_path):
     geo = jaxlc.synthetic_geometry(duration_s=3)
-    minimal = geo[["utc", "t_s", *jaxlc.tables.POSITION_COLUMNS]]
+    minimal = geo[["utc", "t_s", *jaxlc.io.tables.POSITION_COLUMNS]]
     out = validate_geometry(minimal)
     assert out["visible"].all() and (out["shadow_nu"] == 1).all()
     assert out["exposure_s"].isna().all()
@@ -77,7 +83,7 @@ BAD = [
     ),
     (
         lambda g: g.__setitem__("utc", ["2019-07-07T12:00:00Z", "bad", "x", "y", "z"]),
-        "'utc' is not ISO 8601",
+        r"'utc' = 'bad' \(row 1\) is not an ISO 8601",
     ),
     (
         lambda g: [g.__setitem__(f"obs_{c}_m", g[f"rso_{c}_m"]) for c in "xyz"],

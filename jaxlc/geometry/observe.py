@@ -21,7 +21,7 @@ from jaxlc.geometry.eclipse import shadow_nu
 from jaxlc.geometry.orbit import propagate_gcrs_m, sgp4_messages
 from jaxlc.geometry.sites import Site
 from jaxlc.geometry.tle import TLE
-from jaxlc.tables import format_utc
+from jaxlc.io.tables import geometry_frame
 
 #: Samples per time chunk (bounds memory: N × chunk × 3 float64 positions).
 TIME_CHUNK = 7200
@@ -179,16 +179,18 @@ def geometry_table(
     obs = cat("obs_m", first_object=False)
     err = cat("sgp4_error")
     messages = sgp4_messages()
-    times = start_utc + pd.to_timedelta(offsets, unit="s")
-    df = pd.DataFrame({"utc": format_utc(times), "t_s": offsets})
-    for name, arr in (("rso", rso), ("sun", sun), ("obs", obs)):
-        for k, c in enumerate("xyz"):
-            df[f"{name}_{c}_m"] = arr[:, k]
-    df["exposure_s"] = float(exposure_s)
-    df["elevation_deg"] = cat("elevation_deg")
-    df["sun_elevation_deg"] = cat("sun_elevation_deg", first_object=False)
-    df["shadow_nu"] = cat("shadow_nu")
-    df["visible"] = cat("visible")
+    df = geometry_frame(
+        start_utc,
+        offsets,
+        rso,
+        sun,
+        obs,
+        float(exposure_s),
+        cat("elevation_deg"),
+        cat("sun_elevation_deg", first_object=False),
+        cat("shadow_nu"),
+        cat("visible"),
+    )
     df["sgp4_error"] = err.astype(int)
     df["sgp4_message"] = [messages.get(int(e), "") if e else "" for e in err]
     df.attrs.update(

@@ -8,8 +8,9 @@ import numpy as np
 import pandas as pd
 
 from jaxlc.errors import JaxlcError
-from jaxlc.photometry import AU_M
-from jaxlc.tables import format_utc
+from jaxlc.io.tables import geometry_frame
+from jaxlc.io.utc import utc_timestamp
+from jaxlc.rendering.photometry import AU_M
 
 
 def synthetic_geometry(
@@ -69,12 +70,37 @@ def synthetic_geometry(
     n = round(duration_s / step_s)
     if not 1 <= n <= 10_000_000:
         raise JaxlcError(f"synthetic geometry: duration_s / step_s = {n} rows; must be 1 … 10⁷")
-    try:
-        start = pd.Timestamp(start_utc)
-    except ValueError as exc:
-        raise JaxlcError(f"synthetic geometry: start_utc = {start_utc!r} is not ISO 8601") from exc
-    start = start.tz_localize("UTC") if start.tzinfo is None else start.tz_convert("UTC")
+    start = utc_timestamp(start_utc, "synthetic geometry: start_utc")
+    t, rso, sun, obs = synthetic_positions(
+        n,
+        step_s,
+        phase_start_deg,
+        phase_end_deg,
+        range_start_m,
+        range_end_m,
+        sun_ra_deg,
+        sun_dec_deg,
+        tilt_deg,
+    )
+    return geometry_frame(start, t, rso, sun, obs, float(exposure_s), frame="synthetic")
 
+
+def synthetic_positions(
+    n: int,
+    step_s: float,
+    phase_start_deg: float,
+    phase_end_deg: float,
+    range_start_m: float,
+    range_end_m: float,
+    sun_ra_deg: float = 0.0,
+    sun_dec_deg: float = 0.0,
+    tilt_deg: float = 0.0,
+) -> tuple[np.ndarray, ...]:
+    """The rows of :func:`synthetic_geometry` as arrays (no checks, no table).
+
+    Returns:
+        ``t_s`` (n,) and the object, Sun and observer positions (n, 3) in m.
+    """
     t = np.arange(n) * step_s
     frac = t / t[-1] if n > 1 else np.zeros(1)
     alpha = np.radians(phase_start_deg + (phase_end_deg - phase_start_deg) * frac)
@@ -88,16 +114,4 @@ def synthetic_geometry(
     obs_dir = np.cos(alpha)[:, None] * s + np.sin(alpha)[:, None] * e
     obs = rng[:, None] * obs_dir
     sun = np.broadcast_to(AU_M * s, (n, 3))
-
-    times = start + pd.to_timedelta(t, unit="s")
-    df = pd.DataFrame({"utc": format_utc(times), "t_s": t})
-    for name, arr in (("rso", np.zeros((n, 3))), ("sun", sun), ("obs", obs)):
-        for k, c in enumerate("xyz"):
-            df[f"{name}_{c}_m"] = arr[:, k]
-    df["exposure_s"] = float(exposure_s)
-    df["elevation_deg"] = np.nan
-    df["sun_elevation_deg"] = np.nan
-    df["shadow_nu"] = 1.0
-    df["visible"] = True
-    df.attrs["frame"] = "synthetic"
-    return df
+    return t, np.zeros((n, 3)), sun, obs

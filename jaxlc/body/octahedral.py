@@ -1,0 +1,64 @@
+"""The octahedral direction grid: unit vectors ↔ an N × N square, and its nodes.
+
+Directions over the whole sphere map onto [−1, 1]² by the octahedral map
+(Praun & Hoppe 2003); the grid's nodes are the N × N cell centres. Shadow
+tables (:mod:`jaxlc.body.shadow`) store one visibility bit per node and
+interpolate between the four nodes around a direction.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+
+
+def octahedral_encode(d, xp=np):
+    """Unit vectors (…, 3) → square coordinates (u, v) in [−1, 1]² (octahedral map)."""
+    x, y, z = d[..., 0], d[..., 1], d[..., 2]
+    scale = xp.abs(x) + xp.abs(y) + xp.abs(z)
+    x, y, z = x / scale, y / scale, z / scale
+    sign = lambda a: xp.where(a >= 0, 1.0, -1.0)  # noqa: E731  (sign(0) = +1)
+    u = xp.where(z >= 0, x, (1.0 - xp.abs(y)) * sign(x))
+    v = xp.where(z >= 0, y, (1.0 - xp.abs(x)) * sign(y))
+    return u, v
+
+
+def octahedral_directions(n: int) -> np.ndarray:
+    """(n², 3) unit directions at the cell centres of the n × n octahedral grid;
+    node (i, j) has index i·n + j."""
+    c = -1.0 + (np.arange(n) + 0.5) * 2.0 / n
+    u, v = np.meshgrid(c, c, indexing="ij")
+    z = 1.0 - np.abs(u) - np.abs(v)
+    x = np.where(z >= 0, u, (1.0 - np.abs(v)) * np.where(u >= 0, 1.0, -1.0))
+    y = np.where(z >= 0, v, (1.0 - np.abs(u)) * np.where(v >= 0, 1.0, -1.0))
+    d = np.stack([x, y, z], -1).reshape(-1, 3)
+    return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+def grid_corners(d, n: int, interpolation: str = "bilinear"):
+    """Grid nodes and weights for directions d (T, 3): (idx (T, C), w (T, C)),
+    C = 4 (bilinear) or 1 (nearest). Weights sum to 1."""
+    u, v = octahedral_encode(d, xp=jnp)
+    a = (u + 1.0) * (0.5 * n) - 0.5
+    b = (v + 1.0) * (0.5 * n) - 0.5
+    if interpolation == "nearest":
+        i = jnp.clip(jnp.round(a), 0, n - 1).astype(jnp.int32)
+        j = jnp.clip(jnp.round(b), 0, n - 1).astype(jnp.int32)
+        return (i * n + j)[:, None], jnp.ones_like(a)[:, None]
+    i0 = jnp.clip(jnp.floor(a), 0, n - 2)
+    j0 = jnp.clip(jnp.floor(b), 0, n - 2)
+    fa = jnp.clip(a - i0, 0.0, 1.0)
+    fb = jnp.clip(b - j0, 0.0, 1.0)
+    i0 = i0.astype(jnp.int32)
+    j0 = j0.astype(jnp.int32)
+    idx = jnp.stack([i0 * n + j0, (i0 + 1) * n + j0, i0 * n + j0 + 1, (i0 + 1) * n + j0 + 1], -1)
+    w = jnp.stack([(1 - fa) * (1 - fb), fa * (1 - fb), (1 - fa) * fb, fa * fb], -1)
+    return idx, w
+
+
+def nearest_node(d: np.ndarray, n: int) -> np.ndarray:
+    """Index of the grid node nearest (in grid coordinates) to each direction (…, 3)."""
+    u, v = octahedral_encode(d)
+    i = np.clip(np.round((u + 1.0) * (0.5 * n) - 0.5), 0, n - 1).astype(np.int64)
+    j = np.clip(np.round((v + 1.0) * (0.5 * n) - 0.5), 0, n - 1).astype(np.int64)
+    return i * n + j

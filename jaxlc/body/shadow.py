@@ -1,0 +1,290 @@
+"""Self-shadowing of non-convex objects, with no ray tracing at render time.
+
+Method (precomputed sub-point visibility on a direction grid):
+
+* Each facet that *can* be shadowed (``Facets.can_shadow``: geometry lies in
+  front of its plane) gets sub-points, and for every direction of an
+  octahedral grid one bit per sub-point says whether it sees that direction
+  (:mod:`jaxlc.body.raycast`, traced once in JAX). The bits are cached on disk
+  (:func:`jaxlc.io.cache.cache_dir` ``("shadow")``), keyed by the mesh's
+  content and the settings, and kept in memory for the rest of the process.
+* At render time the lit *and* seen fraction of facet f is
+  Σ_ab w_a(s) w_b(v) popcount(B_f[a] & B_f[b]) / K over the grid corners a of the
+  Sun direction s and b of the observer direction v (bilinear weights): the
+  joint visibility of the same sub-points from both directions, not a product of
+  two marginal fractions, so partly shadowed facets are represented.
+
+Facets that cannot be shadowed get no data and no work; a convex object has no
+shadow table at all (identical to the unshadowed model).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import time
+from pathlib import Path
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float, UInt32
+
+from jaxlc.body.mesh import Facets, TriangleMesh
+from jaxlc.body.octahedral import grid_corners
+from jaxlc.body.raycast import trace_visibility
+from jaxlc.errors import JaxlcError
+from jaxlc.io.cache import cache_dir
+from jaxlc.io.files import atomic_output
+
+#: Bump when the precomputation changes: cached tables of older versions are ignored.
+ALGORITHM_VERSION = 3
+
+
+@dataclasses.dataclass(frozen=True)
+class ShadowSettings:
+    """Resolution of the shadow approximation.
+
+    Attributes:
+        grid: side N of the octahedral direction grid (N² directions; N = 32
+            gives ~6° spacing, 64 ~3°).
+        spacing: target distance between sub-points as a fraction of the mesh's
+            bounding-box diagonal; a facet of area A gets 32·⌈A / (32 (spacing·diag)²)⌉
+            sub-points (at least 32, at most ``max_subpoints``).
+        max_subpoints: cap per facet, a multiple of 32.
+        interpolation: ``"bilinear"`` over the 4 grid corners of each direction,
+            or ``"nearest"`` (one corner: faster, coarser).
+    """
+
+    grid: int = 32
+    spacing: float = 0.005
+    max_subpoints: int = 512
+    interpolation: str = "bilinear"
+
+    def __post_init__(self):
+        if not (isinstance(self.grid, int) and 4 <= self.grid <= 512):
+            raise JaxlcError(f"shadow grid = {self.grid!r} must be an integer in [4, 512]")
+        if not (isinstance(self.spacing, int | float) and 1e-4 <= self.spacing <= 1.0):
+            raise JaxlcError(
+                f"shadow spacing = {self.spacing!r} must be in [1e-4, 1] (× mesh size)"
+            )
+        ok = isinstance(self.max_subpoints, int) and self.max_subpoints % 32 == 0
+        if not (ok and 32 <= self.max_subpoints <= 4096):
+            raise JaxlcError(
+                f"shadow max_subpoints = {self.max_subpoints!r} must be 32, 64, … 4096"
+            )
+        if self.interpolation not in ("bilinear", "nearest"):
+            raise JaxlcError(
+                f"shadow interpolation = {self.interpolation!r} must be 'bilinear' or 'nearest'"
+            )
+
+    def words_per_facet(self, areas_m2: np.ndarray, diag_m: float) -> np.ndarray:
+        """(F,) number of 32-point words for facets of these areas."""
+        per_point = (self.spacing * diag_m) ** 2
+        words = np.ceil(np.asarray(areas_m2) / (32.0 * per_point)).astype(int)
+        return np.clip(words, 1, self.max_subpoints // 32)
+
+
+# ---------------------------------------------------------------------------
+# Cache
+
+
+def cache_key(
+    mesh: TriangleMesh,
+    facets: Facets,
+    facet_ids: np.ndarray,
+    words: np.ndarray,
+    settings: ShadowSettings,
+) -> str:
+    """Content hash of everything the table depends on."""
+    h = hashlib.sha256()
+    for arr in (mesh.vertices_m, mesh.faces, facets.triangle_facet, facet_ids, words):
+        a = np.ascontiguousarray(arr)
+        h.update(str(a.dtype).encode() + str(a.shape).encode() + a.tobytes())
+    h.update(repr((ALGORITHM_VERSION, settings.grid)).encode())
+    return h.hexdigest()[:24]
+
+
+@dataclasses.dataclass(frozen=True)
+class ShadowData:
+    """Packed visibility with its layout and provenance (host side).
+
+    Attributes:
+        bits: (D, Σ words) uint32; facets are sorted by their number of words
+            and each owns its words consecutively (32 sub-points per word).
+        facet_ids: (F_s,) the facets that can be shadowed, in that order.
+        words: (F_s,) words per facet.
+        settings: the resolution used.
+        seconds: time spent tracing (0 when loaded from the cache).
+        from_cache: whether the table came from disk.
+        path: the cache file, if any.
+        key: content hash of everything the table depends on (:func:`cache_key`).
+    """
+
+    bits: np.ndarray
+    facet_ids: np.ndarray
+    words: np.ndarray
+    settings: ShadowSettings
+    seconds: float
+    from_cache: bool
+    path: Path | None
+    key: str = ""
+
+    @property
+    def nbytes(self) -> int:
+        return int(self.bits.nbytes)
+
+    @property
+    def subpoints(self) -> int:
+        return int(32 * np.sum(self.words))
+
+    @property
+    def groups(self) -> tuple[tuple[int, int], ...]:
+        """((facets, words per facet), …): runs of facets with equal word counts."""
+        values, counts = np.unique(self.words, return_counts=True)
+        return tuple((int(c), int(v)) for v, c in zip(values, counts, strict=True))
+
+
+#: Tables already loaded or traced in this process, by (cache key, cache file, its stamp).
+_LOADED: dict[tuple, ShadowData] = {}
+#: Device copies of those tables, by (cache key, dtype).
+_TABLES: dict[tuple[str, str], ShadowTable] = {}
+#: How many tables a process keeps in memory.
+KEEP_TABLES = 8
+
+
+def shadow_data(
+    mesh: TriangleMesh,
+    facets: Facets,
+    settings: ShadowSettings | None = None,
+    use_cache: bool = True,
+    progress=None,
+) -> ShadowData | None:
+    """The visibility table of the facets that can be shadowed (None if there are none).
+
+    Kept in memory for the process, loaded from the disk cache when the mesh,
+    facets and settings are unchanged, traced (and cached, atomically) otherwise.
+    ``use_cache=False`` always traces and stores nothing.
+    """
+    settings = settings or ShadowSettings()
+    facet_ids = np.flatnonzero(facets.can_shadow)
+    if facet_ids.size == 0:
+        return None
+    diag = float(np.linalg.norm(np.ptp(mesh.vertices_m, axis=0)))
+    words = settings.words_per_facet(facets.areas_m2[facet_ids], diag)
+    order = np.argsort(words, kind="stable")  # runs of equal word counts
+    facet_ids, words = facet_ids[order], words[order]
+    key = cache_key(mesh, facets, facet_ids, words, settings)
+    path = cache_dir("shadow") / f"{key}.npz"
+    memo = (key, str(path), _stamp(path))
+    if use_cache and memo in _LOADED:
+        return dataclasses.replace(_LOADED[memo], from_cache=True, seconds=0.0)
+    data = _load(path, key, facet_ids, words, settings) if use_cache else None
+    if data is None:
+        t0 = time.perf_counter()
+        bits = trace_visibility(mesh, facets, facet_ids, words, settings.grid, progress)
+        seconds = time.perf_counter() - t0
+        stored = None
+        if use_cache:
+            try:
+                with atomic_output(path) as tmp:
+                    np.savez_compressed(tmp, bits=bits)
+                stored = path
+            except OSError:
+                pass  # read-only home: work without a disk cache
+        data = ShadowData(bits, facet_ids, words, settings, seconds, False, stored, key)
+    if use_cache:
+        while len(_LOADED) >= KEEP_TABLES:
+            _LOADED.pop(next(iter(_LOADED)))
+        _LOADED[key, str(path), _stamp(path)] = data
+    return data
+
+
+def _stamp(path: Path):
+    """The cache file's size and modification time (None if absent): a memory copy
+    is used only while the file it came from is unchanged."""
+    try:
+        st = path.stat()
+    except OSError:
+        return None
+    return st.st_size, st.st_mtime_ns
+
+
+def _load(path: Path, key: str, facet_ids, words, settings) -> ShadowData | None:
+    """The cached table at ``path``, or None if it is missing, unreadable or stale."""
+    if not path.is_file():
+        return None
+    try:
+        with np.load(path) as z:
+            bits = z["bits"]
+    except (OSError, ValueError, KeyError):
+        return None  # unreadable cache entry: recompute and replace it
+    if bits.shape != (settings.grid**2, int(words.sum())):
+        return None
+    return ShadowData(bits, facet_ids, words, settings, 0.0, True, path, key)
+
+
+# ---------------------------------------------------------------------------
+# Render time
+
+
+class ShadowTable(eqx.Module):
+    """Packed visibility bits of the facets that can be shadowed (traced input).
+
+    Attributes:
+        bits: (D, Σ words) uint32 (see :class:`ShadowData`); bit b of a word says
+            whether that sub-point sees the grid direction of the row.
+        subpoints: (F_s,) sub-points per facet.
+        groups: ((facets, words per facet), …) runs of the word layout.
+        grid: octahedral grid side N (D = N²).
+        interpolation: ``"bilinear"`` or ``"nearest"``.
+    """
+
+    bits: UInt32[Array, "D W"]
+    subpoints: Float[Array, " F"]
+    groups: tuple[tuple[int, int], ...] = eqx.field(static=True)
+    grid: int = eqx.field(static=True)
+    interpolation: str = eqx.field(static=True)
+
+
+def lit_seen_fraction(
+    table: ShadowTable, sun_b: Float[Array, "T 3"], obs_b: Float[Array, "T 3"]
+) -> Float[Array, "T F"]:
+    """Fraction of each shadowable facet both lit and seen, (T, F_s) in [0, 1]."""
+    idx_s, w_s = grid_corners(sun_b, table.grid, table.interpolation)
+    idx_v, w_v = grid_corners(obs_b, table.grid, table.interpolation)
+    dtype = sun_b.dtype
+    c = idx_s.shape[1]
+    rows = table.bits[jnp.concatenate([idx_s, idx_v], axis=1)]  # one gather: (T, 2C, W)
+    count = 0.0
+    for a in range(c):
+        for b in range(c):
+            both = jax.lax.population_count(rows[:, a] & rows[:, c + b]).astype(dtype)
+            count = count + (w_s[:, a] * w_v[:, b])[:, None] * both
+    parts, start = [], 0
+    for n_facets, words in table.groups:  # sum each facet's words: a static reshape
+        block = count[:, start : start + n_facets * words]
+        parts.append(block if words == 1 else block.reshape(-1, n_facets, words).sum(-1))
+        start += n_facets * words
+    per_facet = parts[0] if len(parts) == 1 else jnp.concatenate(parts, axis=1)
+    return per_facet / table.subpoints.astype(dtype)[None, :]
+
+
+def shadow_table(data: ShadowData, dtype=jnp.float32) -> ShadowTable:
+    """The kernel's view of a table (on the device; one copy per table and dtype)."""
+    memo = (data.key, str(np.dtype(dtype))) if data.key else None
+    if memo in _TABLES:
+        return _TABLES[memo]
+    table = ShadowTable(
+        bits=jnp.asarray(data.bits),
+        subpoints=jnp.asarray(32.0 * data.words, dtype=dtype),
+        groups=data.groups,
+        grid=data.settings.grid,
+        interpolation=data.settings.interpolation,
+    )
+    if memo is not None:
+        while len(_TABLES) >= KEEP_TABLES:
+            _TABLES.pop(next(iter(_TABLES)))
+        _TABLES[memo] = table
+    return table

@@ -1,0 +1,355 @@
+"""The dataset config file (TOML): shape classes, geometry, noise — parsed strictly.
+
+Unknown keys, missing values and bad ranges are :class:`DatasetError`\\ s that
+name the file, the table, the key and the value, raised before any work (the
+meshes are loaded to check part names). A range is a number (fixed) or
+``[low, high]``; reflectances, sizes, phase angles, Sun declinations and tilts
+are drawn uniformly, periods, exponents and ranges log-uniformly (see
+:func:`jaxlc.dataset.draw_curve`)::
+
+    [dataset]
+    count = 200                   # light curves
+    samples = 1800                # per light curve
+    cadence_s = 1.0               # time between samples
+    exposure_s = 1.0              # default: cadence_s
+    shard_size = 50               # curves per shard (the unit of work and of resuming)
+    seed = 1
+
+    [[class]]                     # shape classes, drawn in proportion to weight
+    name = "rocket_body"
+    scene = "s4_falcon9"          # a scene file (relative to this file) or a shipped scene
+    # mesh = "x.obj"              # … or a mesh with [[class.material]] and body_axis
+    weight = 1.0
+    scale = [0.8, 1.2]            # size factor (uniform), × the scene's own scale
+    period_s = [20.0, 200.0]      # spin period (log-uniform); pole isotropic, phase uniform
+    [[class.material]]            # optional with a scene (then replaces its materials)
+    part = "*"
+    brdf = "ashikhmin-shirley"
+    rd = [0.4, 0.7]               # a number or [low, high]: uniform
+    rs = 0.1
+    nu = [10, 300]                # exponents: log-uniform; nv defaults to nu
+    [class.render]                # optional, as a scene's [render] table
+    max_subsamples = 64
+
+    [geometry]
+    source = "synthetic"          # fixed Sun, observer sweeping phase angle
+    phase_start_deg = [10, 90]
+    phase_end_deg = [30, 150]
+    range_start_m = [5e5, 3e6]    # log-uniform (phases: uniform)
+    range_end_m = [5e5, 3e6]      # default: constant range
+    # source = "passes"           # or real passes: a pool of pass geometry tables,
+    # tle = ["data/tle/falcon9_rb.tle"]   # one drawn per curve
+    # sites = ["mt-stromlo"]
+    # start_utc = "2020-08-09T00:00:00Z"
+    # days = 3
+
+    [noise]                       # optional: noisy values kept beside noise-free ones
+    zero_point_mag = 21.0         # magnitude giving 1 photo-electron per second
+    sky_e_per_s = 200.0
+    read_noise_e = 8.0
+    aperture_m = 0.5              # scintillation (Young 1967); omit for none
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from jaxlc.body.brdf import BRDFS
+from jaxlc.dataset.config import (
+    MAX_COUNT,
+    DatasetConfig,
+    DatasetError,
+    MaterialPrior,
+    NoiseModel,
+    PassSource,
+    ShapeClass,
+    SyntheticSource,
+)
+from jaxlc.errors import JaxlcError
+from jaxlc.geometry.observe import Visibility
+from jaxlc.io.toml import Section, nonnegative, nonzero_vector, positive, read_toml, whole
+from jaxlc.io.utc import format_utc, utc_timestamp
+from jaxlc.rendering.options import RenderOptions, render_options_from_table
+from jaxlc.scene import MaterialSpec, Scene, load_scene, resolve_file
+
+
+def load_config(path: str | Path) -> DatasetConfig:
+    """Read and validate a dataset config file.
+
+    Raises:
+        DatasetError: naming the file, table, key and value of the first problem.
+    """
+    data, text = read_toml(path, DatasetError)
+    return config_from_dict(data, source=str(path), base_dir=Path(path).resolve().parent, text=text)
+
+
+def config_from_dict(
+    data: dict, source: str = "<dict>", base_dir: Path | None = None, text: str = ""
+) -> DatasetConfig:
+    """Validate a dataset config given as a dict (the TOML document's structure).
+
+    Meshes are loaded to check part names, so a wrong part fails here, before
+    any rendering.
+    """
+    top = Section(data, source, DatasetError)
+    ds = Section(
+        top.get("dataset", dict, what="the [dataset] table"), f"{source}: [dataset]", DatasetError
+    )
+    count = ds.get("count", int, check=whole(1, MAX_COUNT), what="number of light curves")
+    samples = ds.get("samples", int, check=whole(1, 1_000_000), what="samples per light curve")
+    cadence = ds.get("cadence_s", float, default=1.0, check=positive, what="seconds")
+    exposure = ds.get("exposure_s", float, default=cadence, what="seconds")
+    if not 0 <= exposure <= 3600:
+        raise DatasetError(f"{source}: [dataset]: exposure_s = {exposure:g} must be in [0, 3600]")
+    shard_size = ds.get("shard_size", int, default=100, check=whole(1, 1_000_000))
+    seed = ds.get("seed", int, check=whole(0, 2**63 - 1), what="a whole number ≥ 0")
+    batch = ds.get("batch_size", int, default=16, check=whole(1, 4096), what="renders per call")
+    ds.finish()
+
+    entries = top.get("class", list, what="at least one [[class]] table")
+    if not entries:
+        raise DatasetError(f"{source}: needs at least one [[class]] table")
+    classes = []
+    for i, entry in enumerate(entries, 1):
+        name = entry.get("name", f"#{i}") if isinstance(entry, dict) else f"#{i}"
+        classes.append(_parse_class(entry, f"{source}: [[class]] #{i} ({name})", base_dir))
+    names = [c.name for c in classes]
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise DatasetError(f"{source}: [[class]] name = {dup[0]!r} is given twice")
+
+    geo_table = top.get("geometry", dict, what="the [geometry] table")
+    geometry = _parse_geometry(geo_table, f"{source}: [geometry]", base_dir)
+    noise = None
+    if top.has("noise"):
+        noise = _parse_noise(top.get("noise", dict), f"{source}: [noise]", geometry)
+    top.finish()
+    return DatasetConfig(
+        count=count,
+        samples=samples,
+        cadence_s=cadence,
+        exposure_s=exposure,
+        shard_size=shard_size,
+        seed=seed,
+        batch_size=batch,
+        classes=tuple(classes),
+        geometry=geometry,
+        noise=noise,
+        text=text,
+        source=source,
+    )
+
+
+def _parse_class(entry, where: str, base_dir) -> ShapeClass:
+    sec = Section(entry, where, DatasetError)
+    name = sec.get("name", str, what="label of the class")
+    has_scene, has_mesh = sec.has("scene"), sec.has("mesh")
+    if has_scene == has_mesh:
+        raise DatasetError(f"{where}: give exactly one of 'scene' (a scene file) or 'mesh'")
+    scene = None
+    if has_scene:
+        scene_path = resolve_file(
+            sec.get("scene", str), base_dir, f"{where}: scene", DatasetError, "scenes"
+        )
+        scene = load_scene(scene_path)
+        mesh_path, mesh_scale = scene.mesh_path, scene.scale
+    else:
+        mesh_path = resolve_file(
+            sec.get("mesh", str), base_dir, f"{where}: mesh", DatasetError, "meshes"
+        )
+        mesh_scale = 1.0
+    weight = sec.get("weight", float, default=1.0, check=positive, what="relative frequency")
+    scale = sec.range("scale", 0.0, 1e6, default=(1.0, 1.0), positive=True, what="size factor")
+    period = sec.range("period_s", 0.0, 1e7, positive=True, what="spin period range, seconds")
+    scene_axis = None
+    if scene is not None and scene.attitude.model == "spin":
+        scene_axis = scene.attitude.body_axis
+    axis = sec.get(
+        "body_axis",
+        "vec3",
+        default=... if scene_axis is None else np.asarray(scene_axis),
+        check=nonzero_vector,
+        what="spin axis in the body frame",
+    )
+    axis = tuple(float(x) for x in np.asarray(axis) / np.linalg.norm(axis))
+
+    if sec.has("material"):
+        items = sec.get("material", list)
+        if not items:
+            raise DatasetError(f"{where}: [[class.material]] is empty")
+        materials = [
+            _parse_material(m, f"{where}: [[class.material]] #{j}") for j, m in enumerate(items, 1)
+        ]
+        parts = [m.part for m in materials]
+        dup = sorted({p for p in parts if parts.count(p) > 1})
+        if dup:
+            raise DatasetError(f"{where}: [[class.material]] part {dup[0]!r} is given twice")
+    elif scene is not None:
+        materials = [_prior_from_spec(m) for m in scene.materials]
+    else:
+        raise DatasetError(f"{where}: a class with 'mesh' needs [[class.material]] tables")
+
+    if sec.has("render"):
+        render = render_options_from_table(
+            Section(sec.get("render", dict), f"{where}: [render]", DatasetError)
+        )
+    else:
+        render = scene.render if scene is not None else RenderOptions()
+    sec.finish()
+
+    # Every part must get a material; every named part must exist.
+    probe = Scene(
+        mesh_path=mesh_path,
+        materials=tuple(MaterialSpec(m.part, None) for m in materials),
+        attitude=None,
+        scale=mesh_scale,
+        source=where,
+    )
+    try:
+        probe.materials_for(probe.body[1].part_names)
+    except JaxlcError as exc:
+        raise DatasetError(str(exc)) from None
+    return ShapeClass(
+        name=name,
+        mesh_path=mesh_path,
+        mesh_scale=mesh_scale,
+        weight=weight,
+        scale=scale,
+        period_s=period,
+        body_axis=axis,
+        materials=tuple(materials),
+        render=render,
+    )
+
+
+def _parse_material(entry, where) -> MaterialPrior:
+    sec = Section(entry, where, DatasetError)
+    part = sec.get("part", str, default="*")
+    brdf = sec.get("brdf", str, what=f"one of {', '.join(BRDFS)}")
+    if brdf not in BRDFS:
+        raise DatasetError(f"{where}: brdf = {brdf!r} is not one of {', '.join(BRDFS)}")
+    rd = sec.range("rd", 0.0, 1.0, what="reflectance, 0 … 1")
+    rs = nu = nv = None
+    tangent = (0.0, 0.0, 1.0)
+    if brdf != "lambert":
+        rs = sec.range("rs", 0.0, 1.0, what="reflectance, 0 … 1")
+        nu = sec.range("nu", 0.0, 1e6, what="AS exponent, 0 … 1e6")
+        nv = sec.range("nv", 0.0, 1e6, default=None, what="AS exponent, 0 … 1e6")
+        tangent = sec.get(
+            "tangent", "vec3", default=tangent, check=nonzero_vector, what="body-frame u tangent"
+        )
+        tangent = tuple(float(x) for x in tangent)
+    sec.finish()
+    return MaterialPrior(part=part, brdf=brdf, rd=rd, rs=rs, nu=nu, nv=nv, tangent=tangent)
+
+
+def _prior_from_spec(spec: MaterialSpec) -> MaterialPrior:
+    """A fixed prior from a scene's material."""
+    b = spec.brdf
+    name = next(k for k, v in BRDFS.items() if type(b) is v)
+    fixed = lambda x: (float(x), float(x))  # noqa: E731
+    if name == "lambert":
+        return MaterialPrior(spec.part, name, fixed(b.rd))
+    nv = None if float(b.nv) == float(b.nu) else fixed(b.nv)
+    return MaterialPrior(
+        spec.part, name, fixed(b.rd), fixed(b.rs), fixed(b.nu), nv, tuple(b.tangent)
+    )
+
+
+def _parse_geometry(table, where, base_dir):
+    sec = Section(table, where, DatasetError)
+    source = sec.get("source", str, what="'synthetic' or 'passes'")
+    if source == "synthetic":
+        geo = SyntheticSource(
+            phase_start_deg=sec.range("phase_start_deg", 0.0, 180.0, what="degrees"),
+            phase_end_deg=sec.range("phase_end_deg", 0.0, 180.0, what="degrees"),
+            range_start_m=sec.range("range_start_m", 0.0, 1e12, positive=True, what="metres"),
+            range_end_m=sec.range("range_end_m", 0.0, 1e12, default=None, positive=True),
+            sun_dec_deg=sec.range("sun_dec_deg", -90.0, 90.0, default=(-23.44, 23.44)),
+            tilt_deg=sec.range("tilt_deg", -180.0, 180.0, default=(-90.0, 90.0)),
+            start_utc=_utc(sec.get("start_utc", str, default="2019-07-07T12:00:00Z"), where),
+        )
+    elif source == "passes":
+        from jaxlc.geometry.sites import get_site
+
+        tles = sec.get("tle", "strings", what="TLE file(s)")
+        paths = tuple(resolve_file(t, base_dir, f"{where}: tle", DatasetError) for t in tles)
+        norad = sec.get("norad", "ints", default=None, what="catalogue numbers")
+        sites = sec.get("sites", "strings", what="registered site names (jaxlc sites)")
+        for s in sites:
+            try:
+                get_site(s)
+            except JaxlcError as exc:
+                raise DatasetError(f"{where}: sites: {exc}") from None
+        rules = dict(
+            min_elevation_deg=sec.get("min_elevation_deg", float, default=15.0),
+            max_sun_elevation_deg=sec.get("max_sun_elevation_deg", float, default=-6.0),
+            min_shadow_nu=sec.get("min_shadow_nu", float, default=0.0),
+        )
+        try:
+            visibility = Visibility(**rules)
+        except JaxlcError as exc:
+            raise DatasetError(f"{where}: {exc}") from None
+        geo = PassSource(
+            tle_paths=paths,
+            norad=norad,
+            sites=tuple(s.strip().lower() for s in sites),
+            start_utc=_utc(sec.get("start_utc", str, what="window start, ISO 8601"), where),
+            days=sec.get(
+                "days",
+                float,
+                check=lambda x: None if 0 < x <= 60 else "must be in (0, 60]",
+                what="window length",
+            ),
+            search_step_s=sec.get("search_step_s", float, default=10.0, check=positive),
+            rules=visibility,
+            min_pass_s=sec.get(
+                "min_pass_s", float, default=60.0, check=lambda x: None if x >= 0 else "must be ≥ 0"
+            ),
+            max_passes=sec.get("max_passes", int, default=500, check=whole(1, 100_000)),
+        )
+    else:
+        raise DatasetError(f"{where}: source = {source!r} must be 'synthetic' or 'passes'")
+    sec.finish()
+    return geo
+
+
+def _utc(text: str, where: str) -> str:
+    ts = utc_timestamp(text, f"{where}: start_utc", DatasetError)
+    return format_utc([ts])[0]
+
+
+def _parse_noise(table, where, geometry) -> NoiseModel:
+    sec = Section(table, where, DatasetError)
+    zp = sec.get(
+        "zero_point_mag",
+        float,
+        check=lambda x: None if -10 <= x <= 40 else "must be in [-10, 40]",
+        what="magnitude giving 1 photo-electron per second",
+    )
+    sky = sec.get("sky_e_per_s", float, default=0.0, check=nonnegative, what="electrons per second")
+    read = sec.get("read_noise_e", float, default=0.0, check=nonnegative, what="electrons rms")
+    aperture = sec.get("aperture_m", float, default=None, check=positive, what="metres")
+    synthetic = isinstance(geometry, SyntheticSource)
+    altitude = airmass = None
+    if sec.has("altitude_m") or sec.has("airmass"):
+        if not synthetic:
+            key = "altitude_m" if "altitude_m" in sec.data else "airmass"
+            raise DatasetError(
+                f"{where}: {key} applies to synthetic geometry only; real passes use the "
+                "site's altitude and the object's elevation"
+            )
+        altitude = sec.get("altitude_m", float, default=0.0, what="site altitude, metres")
+        airmass = sec.get(
+            "airmass",
+            float,
+            default=1.0,
+            check=lambda x: None if 1 <= x <= 40 else "must be in [1, 40]",
+        )
+    sec.finish()
+    if synthetic:
+        altitude = 0.0 if altitude is None else altitude
+        airmass = 1.0 if airmass is None else airmass
+    return NoiseModel(zp, sky, read, aperture, altitude, airmass)

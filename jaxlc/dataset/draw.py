@@ -1,0 +1,228 @@
+"""One curve of a dataset: its draws, its scene and its geometry.
+
+Every curve is a pure function of (config, seed, curve index): curve i draws
+its shape class, size, materials, spin and geometry from
+``numpy.random.SeedSequence(seed, spawn_key=(i,))`` (the i-th child of
+``SeedSequence(seed).spawn``). Its scene (:func:`curve_scene`, a scene-file
+dict) and geometry (:func:`curve_geometry`) are what it is rendered from, by
+the same preparation as :func:`jaxlc.render`; the store keeps them as labels
+so that :meth:`jaxlc.dataset.store.Dataset.scene` and ``.geometry`` give them back.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pandas as pd
+
+from jaxlc.dataset.config import DatasetConfig, DatasetError, SyntheticSource
+from jaxlc.dataset.noise import airmass_from_elevation
+from jaxlc.geometry.synthetic import synthetic_positions
+from jaxlc.io.utc import format_utc, utc_timestamp
+from jaxlc.rendering.observation import GeometryArrays, geometry_from_positions
+
+
+@dataclasses.dataclass(frozen=True)
+class Curve:
+    """The drawn parameters of one light curve.
+
+    Attributes:
+        index: curve number in the dataset.
+        class_id: index into ``config.classes``.
+        scale: size factor drawn from the class (× the class's ``mesh_scale``).
+        period_s, pole_ra_deg, pole_dec_deg, phase_deg: the spin; the phase is
+            at the curve's first sample (t_s = 0).
+        materials: one scene ``[[material]]`` dict per class material entry.
+        geometry: synthetic: the :func:`jaxlc.synthetic_geometry` keyword
+            arguments; passes: ``{"pass_id": p, "offset": k}`` (rows of the pool).
+    """
+
+    index: int
+    class_id: int
+    scale: float
+    period_s: float
+    pole_ra_deg: float
+    pole_dec_deg: float
+    phase_deg: float
+    materials: tuple[dict, ...]
+    geometry: dict
+
+
+def _uniform(rng, r):
+    u = rng.random()
+    return r[0] if r[0] == r[1] else r[0] + (r[1] - r[0]) * u
+
+
+def _log_uniform(rng, r):
+    u = rng.random()
+    if r[0] == r[1]:
+        return r[0]
+    if r[0] <= 0.0:
+        return r[0] + (r[1] - r[0]) * u
+    return math.exp(math.log(r[0]) + (math.log(r[1]) - math.log(r[0])) * u)
+
+
+def curve_rng(seed: int, index: int, stream: int = 0) -> np.random.Generator:
+    """The random stream of curve ``index``: 0 for its parameters, 1 for its noise.
+
+    Stream 0 is ``SeedSequence(seed).spawn(index + 1)[index]``; stream 1 is
+    that sequence's first child.
+    """
+    key = (index,) if stream == 0 else (index, stream - 1)
+    return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=key))
+
+
+def draw_curve(config: DatasetConfig, index: int, pass_lengths: np.ndarray | None = None) -> Curve:
+    """Draw curve ``index`` (a pure function of the config, its seed and ``index``).
+
+    Args:
+        config: the dataset config.
+        index: curve number, 0 … count − 1.
+        pass_lengths: (P,) samples per pass of the pool (real passes only).
+
+    Order of the draws (fixed; a fixed value still takes its draw, so changing
+    a range never shifts the others): class, scale, period, pole (z, RA),
+    phase, materials (rd, rs, nu, nv per entry), geometry.
+    """
+    rng = curve_rng(config.seed, index)
+    weights = np.array([c.weight for c in config.classes])
+    cum = np.cumsum(weights) / weights.sum()
+    class_id = min(int(np.searchsorted(cum, rng.random(), side="right")), len(cum) - 1)
+    cls = config.classes[class_id]
+    scale = _uniform(rng, cls.scale)
+    period = _log_uniform(rng, cls.period_s)
+    z = 2.0 * rng.random() - 1.0
+    ra = 360.0 * rng.random()
+    phase = 360.0 * rng.random()
+    materials = []
+    for m in cls.materials:
+        entry = {"part": m.part, "brdf": m.brdf, "rd": _uniform(rng, m.rd)}
+        if m.brdf != "lambert":
+            entry["rs"] = _uniform(rng, m.rs)
+            entry["nu"] = _log_uniform(rng, m.nu)
+            nv = _log_uniform(rng, m.nv if m.nv is not None else m.nu)
+            entry["nv"] = nv if m.nv is not None else entry["nu"]
+            entry["tangent"] = list(m.tangent)
+        materials.append(entry)
+    g = config.geometry
+    if isinstance(g, SyntheticSource):
+        start_m = _log_uniform(rng, g.range_start_m)
+        end_m = _log_uniform(rng, g.range_end_m if g.range_end_m is not None else g.range_start_m)
+        geometry = dict(
+            phase_start_deg=_uniform(rng, g.phase_start_deg),
+            phase_end_deg=_uniform(rng, g.phase_end_deg),
+            range_start_m=start_m,
+            range_end_m=end_m if g.range_end_m is not None else start_m,
+            sun_ra_deg=360.0 * rng.random(),
+            sun_dec_deg=_uniform(rng, g.sun_dec_deg),
+            tilt_deg=_uniform(rng, g.tilt_deg),
+        )
+    else:
+        if pass_lengths is None or len(pass_lengths) == 0:
+            raise DatasetError("draw_curve: real-pass geometry needs the pool's pass lengths")
+        p = int(rng.integers(len(pass_lengths)))
+        spare = max(0, int(pass_lengths[p]) - config.samples)
+        geometry = dict(pass_id=p, offset=int(rng.integers(spare + 1)))
+    return Curve(
+        index=index,
+        class_id=class_id,
+        scale=scale,
+        period_s=period,
+        pole_ra_deg=ra,
+        pole_dec_deg=math.degrees(math.asin(z)),
+        phase_deg=phase,
+        materials=tuple(materials),
+        geometry=geometry,
+    )
+
+
+def scene_dict(
+    mesh: str,
+    scale: float,
+    materials,
+    body_axis,
+    pole_ra_deg: float,
+    pole_dec_deg: float,
+    period_s: float,
+    phase_deg: float,
+    exposure_s: float,
+    render: dict,
+) -> dict:
+    """A curve's scene as a scene-file dict (:func:`jaxlc.scene_from_dict`); the spin
+    phase is at the curve's first sample (no epoch)."""
+    return {
+        "object": {"mesh": str(mesh), "scale": float(scale)},
+        "material": [dict(m) for m in materials],
+        "attitude": {
+            "model": "spin",
+            "body_axis": [float(x) for x in body_axis],
+            "pole_ra_deg": float(pole_ra_deg),
+            "pole_dec_deg": float(pole_dec_deg),
+            "period_s": float(period_s),
+            "phase_deg": float(phase_deg),
+        },
+        "sensor": {"exposure_s": float(exposure_s)},
+        "render": dict(render),
+    }
+
+
+def curve_scene(config: DatasetConfig, curve: Curve) -> dict:
+    """The scene of a drawn curve (a scene-file dict)."""
+    cls = config.classes[curve.class_id]
+    return scene_dict(
+        cls.mesh_path,
+        cls.mesh_scale * curve.scale,
+        curve.materials,
+        cls.body_axis,
+        curve.pole_ra_deg,
+        curve.pole_dec_deg,
+        curve.period_s,
+        curve.phase_deg,
+        config.exposure_s,
+        cls.render.as_table(),
+    )
+
+
+@dataclasses.dataclass(frozen=True)
+class CurveGeometry:
+    """The geometry of one curve: per-row arrays, airmass (T,) for the noise model,
+    and the UTC of the first sample."""
+
+    arrays: GeometryArrays
+    airmass: np.ndarray
+    utc_start: str
+
+
+def curve_geometry(config: DatasetConfig, curve: Curve, pool=None) -> CurveGeometry:
+    """Geometry of a curve: its synthetic track, or its rows of the pass pool."""
+    n, cadence, g = config.samples, config.cadence_s, curve.geometry
+    if isinstance(config.geometry, SyntheticSource):
+        t, rso, sun, obs = synthetic_positions(
+            n,
+            cadence,
+            g["phase_start_deg"],
+            g["phase_end_deg"],
+            g["range_start_m"],
+            g["range_end_m"],
+            g["sun_ra_deg"],
+            g["sun_dec_deg"],
+            g["tilt_deg"],
+        )
+        start = utc_timestamp(config.geometry.start_utc)
+        nu, visible = 1.0, True
+        airmass = np.full(n, config.noise.airmass if config.noise is not None else 1.0)
+    else:
+        rows = pool.rows(g["pass_id"], g["offset"], n)
+        t = np.arange(n) * cadence
+        rso, sun, obs = rows["rso_m"], rows["sun_m"], rows["obs_m"]
+        nu, visible = rows["shadow_nu"], rows["visible"]
+        airmass = airmass_from_elevation(rows["elevation_deg"])
+        start = utc_timestamp(pool.utc_start[g["pass_id"]]) + pd.Timedelta(
+            seconds=g["offset"] * pool.cadence_s
+        )
+    arrays = geometry_from_positions(
+        t, rso, sun, obs, nu, config.exposure_s, visible, origin_utc=start
+    )
+    return CurveGeometry(arrays, airmass, format_utc([start])[0])

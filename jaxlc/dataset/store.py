@@ -1,0 +1,267 @@
+"""The Zarr v3 store of a bulk dataset: layout, shard writes, reading back.
+
+Layout (N curves of T samples, chunks of one shard along N)::
+
+    DATA.zarr/
+      zarr.json                 attrs: format, config text, fingerprint, jaxlc version,
+                                git commit, classes, shapes, units, noise model
+      t_s                 (T,)    float64  seconds from each curve's first exposure start
+      mag                 (N, T)  float32  NaN where not visible
+      flux_w_m2           (N, T)  float32  W/m² at the observer, NaN where not visible
+      phase_angle_deg     (N, T)  float32
+      range_m             (N, T)  float32
+      visible             (N, T)  bool
+      mag_noisy, flux_noisy_w_m2, mag_err   (N, T) float32   only with a [noise] table
+      labels/<column>     (N,)    one array per label column (LABELS)
+      passes/…                    the pass pool (real-pass geometry only)
+      shards/done         (S,)    bool, one chunk per shard: written after the shard's data
+
+A shard's chunks are written whole (each chunk file atomically, by zarr's
+local store) and its ``done`` flag last, so a killed run leaves at worst a
+shard whose data may be partly new but which is not marked done; the next
+run renders it again. :func:`open_dataset` refuses a store with missing
+shards unless ``partial=True``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from jaxlc.dataset.config import DatasetError
+from jaxlc.io.provenance import git_commit, jaxlc_version
+
+#: Format tag written into every store's attributes.
+FORMAT = "jaxlc-dataset/1"
+
+#: Per-sample arrays: dtype, fill value, unit/meaning; the noisy ones only with noise.
+ARRAYS = {
+    "mag": ("float32", np.nan, "apparent magnitude (noise-free); NaN: not visible"),
+    "flux_w_m2": ("float32", np.nan, "visible-band flux at the observer (W/m², noise-free)"),
+    "phase_angle_deg": ("float32", np.nan, "Sun-object-observer angle (deg)"),
+    "range_m": ("float32", np.nan, "object-observer distance (m)"),
+    "visible": ("bool", False, "sample observed (visibility rules; rendered)"),
+}
+NOISE_ARRAYS = {
+    "mag_noisy": ("float32", np.nan, "magnitude with noise; NaN: not visible or flux ≤ 0"),
+    "flux_noisy_w_m2": ("float32", np.nan, "flux with noise (W/m², may be ≤ 0)"),
+    "mag_err": ("float32", np.nan, "expected 1-sigma magnitude error of the noise model"),
+}
+#: Per-curve label columns: dtype, fill value, meaning.
+LABELS = {
+    "class": ("str", "", "shape class name"),
+    "class_id": ("int32", -1, "index of the class in attrs['classes']"),
+    "mesh": ("str", "", "mesh file"),
+    "scale": ("float64", np.nan, "[object] scale of the curve's scene (class scale × size factor)"),
+    "materials": ("str", "", "JSON list of the scene [[material]] tables drawn for the curve"),
+    "body_axis_x": ("float64", np.nan, "spin axis in the body frame"),
+    "body_axis_y": ("float64", np.nan, ""),
+    "body_axis_z": ("float64", np.nan, ""),
+    "pole_ra_deg": ("float64", np.nan, "spin pole right ascension (deg)"),
+    "pole_dec_deg": ("float64", np.nan, "spin pole declination (deg)"),
+    "period_s": ("float64", np.nan, "spin period (s)"),
+    "phase_deg": ("float64", np.nan, "spin phase at t_s = 0 (deg)"),
+    "subsamples": ("int32", 0, "sub-exposures per exposure (motion blur)"),
+    "shadows": ("bool", False, "self-shadowing rendered"),
+    "geometry": ("str", "", "'synthetic' or 'pass'"),
+    "utc_start": ("str", "", "UTC of the first sample"),
+    "phase_start_deg": ("float64", np.nan, "synthetic: phase angle at the first sample"),
+    "phase_end_deg": ("float64", np.nan, "synthetic: phase angle at the last sample"),
+    "range_start_m": ("float64", np.nan, "synthetic: range at the first sample"),
+    "range_end_m": ("float64", np.nan, "synthetic: range at the last sample"),
+    "sun_ra_deg": ("float64", np.nan, "synthetic: Sun direction"),
+    "sun_dec_deg": ("float64", np.nan, "synthetic: Sun direction"),
+    "tilt_deg": ("float64", np.nan, "synthetic: tilt of the observer's plane"),
+    "pass_id": ("int32", -1, "passes: index into the pool (passes/)"),
+    "pass_offset": ("int32", -1, "passes: first row taken from the pass"),
+    "norad_id": ("int64", -1, "passes: catalogue number"),
+    "site": ("str", "", "passes: site name"),
+    "visible_samples": ("int32", 0, "number of visible samples"),
+    "phase_mean_deg": ("float64", np.nan, "mean phase angle over visible samples"),
+    "phase_min_deg": ("float64", np.nan, "min phase angle over visible samples"),
+    "phase_max_deg": ("float64", np.nan, "max phase angle over visible samples"),
+    "range_mean_m": ("float64", np.nan, "mean range over visible samples"),
+}
+
+
+def zarr_module():
+    try:
+        import zarr
+    except ImportError:
+        raise DatasetError(
+            "datasets need zarr (and dask/distributed to run on workers): pip install 'jaxlc[dask]'"
+        ) from None
+    return zarr
+
+
+def _classes_attr(config) -> list[dict]:
+    import hashlib
+
+    out = []
+    for c in config.classes:
+        r = c.render
+        out.append(
+            {
+                "name": c.name,
+                "mesh": str(c.mesh_path),
+                "mesh_sha256": hashlib.sha256(c.mesh_path.read_bytes()).hexdigest(),
+                "mesh_scale": c.mesh_scale,
+                "weight": c.weight,
+                "scale": list(c.scale),
+                "period_s": list(c.period_s),
+                "body_axis": list(c.body_axis),
+                "render": r.as_table(),
+            }
+        )
+    return out
+
+
+def create_store(path: Path, config, pool=None) -> None:
+    """Create the empty store of ``config`` at ``path`` (atomically: built beside it, renamed).
+
+    If another process created it meanwhile, that store is kept.
+    """
+    zarr = zarr_module()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.creating")
+    shutil.rmtree(tmp, ignore_errors=True)
+    try:
+        root = zarr.open_group(str(tmp), mode="w")
+        n, t = config.count, config.samples
+        arrays = dict(ARRAYS, **(NOISE_ARRAYS if config.noise is not None else {}))
+        for name, (dtype, fill, _) in arrays.items():
+            root.create_array(
+                name, shape=(n, t), chunks=(config.shard_size, t), dtype=dtype, fill_value=fill
+            )
+        ts = root.create_array("t_s", shape=(t,), chunks=(t,), dtype="float64")
+        ts[:] = np.arange(t) * config.cadence_s
+        labels = root.create_group("labels")
+        for name, (dtype, fill, _) in LABELS.items():
+            labels.create_array(
+                name,
+                shape=(n,),
+                chunks=(config.shard_size,),
+                dtype=str if dtype == "str" else dtype,
+                fill_value=fill,
+            )
+        shards = root.create_group("shards")
+        shards.create_array(
+            "done", shape=(config.n_shards,), chunks=(1,), dtype="bool", fill_value=False
+        )
+        if pool is not None:
+            _write_pool(root.create_group("passes"), pool)
+        noise = None if config.noise is None else dataclasses.asdict(config.noise)
+        root.attrs.update(
+            {
+                "format": FORMAT,
+                "fingerprint": config.fingerprint(),
+                "config_text": config.text,
+                "config_source": config.source,
+                "jaxlc_version": jaxlc_version(),
+                "git_commit": git_commit(),
+                "created_utc": pd.Timestamp.now(tz="UTC").strftime("%Y-%m-%dT%H:%M:%SZ"),
+                "count": n,
+                "samples": t,
+                "cadence_s": config.cadence_s,
+                "exposure_s": config.exposure_s,
+                "shard_size": config.shard_size,
+                "n_shards": config.n_shards,
+                "seed": config.seed,
+                "batch_size": config.batch_size,
+                "geometry_source": "synthetic" if pool is None else "passes",
+                "noise": noise,
+                "classes": _classes_attr(config),
+                "arrays": {k: v[2] for k, v in arrays.items()},
+                "labels": {k: v[2] for k, v in LABELS.items()},
+            }
+        )
+        try:
+            os.rename(tmp, path)
+        except OSError:
+            if not path.exists():
+                raise
+            # Another run created it first: use that one (its fingerprint is checked next).
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _write_pool(group, pool) -> None:
+    from jaxlc.geometry.pool import POOL_ARRAYS
+
+    for key in (*POOL_ARRAYS, "length", "norad_id", "site_alt_m"):
+        x = np.asarray(getattr(pool, key))
+        a = group.create_array(key, shape=x.shape, chunks=x.shape, dtype=x.dtype)
+        a[...] = x
+    for key in ("utc_start", "name", "site"):
+        x = np.asarray(getattr(pool, key)).astype(object)
+        a = group.create_array(key, shape=x.shape, chunks=x.shape, dtype=str)
+        a[...] = x
+    group.attrs["cadence_s"] = pool.cadence_s
+
+
+def read_pool(path: str | Path):
+    """The pass pool stored in a dataset (None for synthetic geometry)."""
+    from jaxlc.geometry.pool import POOL_ARRAYS, PassPool
+
+    root = zarr_module().open_group(str(path), mode="r")
+    if "passes" not in root:
+        return None
+    g = root["passes"]
+    fields = {k: np.asarray(g[k][...]) for k in (*POOL_ARRAYS, "length", "norad_id", "site_alt_m")}
+    for k in ("utc_start", "name", "site"):
+        fields[k] = np.asarray(g[k][...]).astype(object).astype(str)
+    return PassPool(**fields, cadence_s=float(g.attrs["cadence_s"]))
+
+
+def check_store(path: Path, config) -> None:
+    """Raise unless ``path`` is a dataset store made from this very config."""
+    zarr = zarr_module()
+    try:
+        root = zarr.open_group(str(path), mode="r")
+        attrs = dict(root.attrs)
+    except Exception as exc:
+        raise DatasetError(
+            f"{path} exists and is not a dataset store ({type(exc).__name__}: {exc}); "
+            "choose another output path"
+        ) from None
+    if attrs.get("format") != FORMAT:
+        raise DatasetError(
+            f"{path} exists and is not a jaxlc dataset (format {attrs.get('format')!r}); "
+            "choose another output path"
+        )
+    if attrs.get("fingerprint") != config.fingerprint():
+        raise DatasetError(
+            f"{path} was made from a different config, count, seed or mesh files "
+            f"(fingerprint {attrs.get('fingerprint')} ≠ {config.fingerprint()}, from "
+            f"{attrs.get('config_source')}); resume with the same config and options, or "
+            "write to a new path"
+        )
+
+
+def done_shards(path: str | Path) -> np.ndarray:
+    """(S,) bool: which shards are complete."""
+    root = zarr_module().open_group(str(path), mode="r")
+    return np.asarray(root["shards"]["done"][...], dtype=bool)
+
+
+def write_shard(path: str | Path, shard: int, start: int, arrays: dict, labels: pd.DataFrame):
+    """Write one shard's rows ``start …`` of every array and label, then mark it done."""
+    root = zarr_module().open_group(str(path), mode="r+")
+    stop = start + len(labels)
+    for name, x in arrays.items():
+        root[name][start:stop] = x
+    group = root["labels"]
+    for name, (dtype, _, _) in LABELS.items():
+        values = labels[name].to_numpy()
+        group[name][start:stop] = values.astype(object) if dtype == "str" else values
+    root["shards"]["done"][shard] = True  # last: a partial shard is never marked done
+
+
+# ---------------------------------------------------------------------------
+# Reading back

@@ -1,0 +1,148 @@
+"""Observed samples paired with their geometry: the data of a spin fit.
+
+:func:`fit_data` matches a light-curve table to its geometry table row by row
+(by UTC) and keeps the rows that are visible and have a finite magnitude. The
+geometry stays whole (:class:`~jaxlc.rendering.prepare.GeometryArrays`), so
+the fit's forward model is prepared from it exactly as :func:`jaxlc.render`
+prepares a light curve (:func:`jaxlc.inference.model.spin_model`), exposures
+and all. Times count from the fit epoch, the mid-exposure of the middle
+fitted sample, which decorrelates the rotation phase from the period.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pandas as pd
+
+from jaxlc.errors import JaxlcError
+from jaxlc.io.tables import validate_geometry
+from jaxlc.io.utc import parse_utc
+from jaxlc.rendering import photometry
+from jaxlc.rendering.observation import GeometryArrays, geometry_arrays
+
+#: Width (mag) of the soft clip at the faint limit.
+CLIP_WIDTH_MAG = 0.1
+#: A spin fit needs at least this many usable samples.
+MIN_SAMPLES = 20
+
+
+def soft_clip(mag, limit_mag):
+    """Smoothly clip magnitudes at the faint limit: ``L − w·softplus((L − m)/w)``
+    (numpy or JAX; the identity for m ≪ L)."""
+    import jax
+
+    w = CLIP_WIDTH_MAG
+    if isinstance(mag, jax.Array):
+        return limit_mag - w * jax.nn.softplus((limit_mag - mag) / w)
+    return limit_mag - w * np.logaddexp(0.0, (limit_mag - np.asarray(mag)) / w)
+
+
+@dataclasses.dataclass(frozen=True)
+class FitData:
+    """Observed samples with their geometry (host side, float64).
+
+    Attributes:
+        geometry: per-row geometry of the whole geometry table.
+        rows: (N,) the geometry rows fitted.
+        mag: (N,) observed magnitudes.
+        mag_err: (N,) 1σ errors (zeros when unknown: the noise parameter carries it all).
+        epoch_utc: time origin of the fit (and of the fitted phase).
+        limit_mag: faint clipping level L (:func:`soft_clip`).
+    """
+
+    geometry: GeometryArrays
+    rows: np.ndarray
+    mag: np.ndarray
+    mag_err: np.ndarray
+    epoch_utc: pd.Timestamp
+    limit_mag: float = float("inf")
+
+    @property
+    def n(self) -> int:
+        return len(self.rows)
+
+    @property
+    def epoch_offset_s(self) -> float:
+        """Seconds from the geometry's first row to the fit epoch."""
+        return (self.epoch_utc - self.geometry.origin_utc).total_seconds()
+
+    @property
+    def t_s(self) -> np.ndarray:
+        """(N,) mid-exposure times, seconds from the fit epoch."""
+        return self.geometry.t_mid_s[self.rows] - self.epoch_offset_s
+
+    @property
+    def const_mag(self) -> np.ndarray:
+        """(N,) the magnitude of unit I/E: −26.74 − 2.5 log10(E / (d² C_sun))."""
+        g = self.geometry
+        flux = photometry.flux_w_m2(1.0, g.irradiance_w_m2[self.rows], g.range_m[self.rows])
+        return photometry.magnitude(flux)
+
+    def subset(self, idx) -> FitData:
+        """These samples only (indices into the fitted samples)."""
+        idx = np.asarray(idx)
+        return dataclasses.replace(
+            self, rows=self.rows[idx], mag=self.mag[idx], mag_err=self.mag_err[idx]
+        )
+
+
+def fit_data(
+    lightcurve: pd.DataFrame,
+    geometry: pd.DataFrame,
+    column: str = "mag",
+    faint_clip_mag: float = 5.0,
+    default_exposure_s: float = 1.0,
+) -> FitData:
+    """Pair an observed light curve with its geometry table (rows matched by UTC).
+
+    Args:
+        lightcurve: ``utc`` and ``column`` (+ optional ``mag_err``, ``visible``).
+        geometry: the geometry table the light curve was observed (or rendered) with.
+        column: the magnitude column.
+        faint_clip_mag: the faint limit, this far below the median magnitude.
+        default_exposure_s: exposure of rows whose table gives none (the scene's).
+
+    Raises:
+        JaxlcError: when rows do not match, or fewer than 20 usable samples remain.
+    """
+    geometry = validate_geometry(geometry)
+    if column not in lightcurve.columns:
+        raise JaxlcError(f"light curve has no column {column!r}")
+    geo = geometry_arrays(geometry, default_exposure_s)
+    g_utc = parse_utc(geometry["utc"], "geometry table utc")
+    l_utc = parse_utc(lightcurve["utc"].astype(str), "light curve utc")
+    pos = g_utc.get_indexer(l_utc, method="nearest", tolerance=pd.Timedelta("1ms"))
+    if np.any(pos < 0):
+        first = int(np.flatnonzero(pos < 0)[0])
+        raise JaxlcError(
+            f"light-curve row {first} (utc {l_utc[first]}) has no geometry row at the same "
+            "time; give the geometry table the light curve was observed (or rendered) with"
+        )
+    mag = lightcurve[column].to_numpy(np.float64)
+    ok = np.isfinite(mag) & geo.visible[pos]
+    if "visible" in lightcurve.columns:
+        ok &= lightcurve["visible"].to_numpy(bool)
+    err = (
+        lightcurve["mag_err"].to_numpy(np.float64)
+        if "mag_err" in lightcurve.columns
+        else np.zeros(len(mag))
+    )
+    ok &= np.isfinite(err) & (err >= 0)
+    if np.count_nonzero(ok) < MIN_SAMPLES:
+        raise JaxlcError(
+            f"only {int(np.count_nonzero(ok))} visible samples with finite magnitudes; "
+            f"a spin fit needs at least {MIN_SAMPLES}"
+        )
+    rows = pos[ok]
+    t_mid = geo.t_mid_s[rows]
+    epoch = geo.origin_utc + pd.Timedelta(seconds=float(t_mid[len(t_mid) // 2]))
+    return FitData(
+        geometry=geo,
+        rows=rows,
+        mag=mag[ok],
+        mag_err=err[ok],
+        epoch_utc=epoch,
+        limit_mag=float(np.median(mag[ok]) + faint_clip_mag),
+    )

@@ -1,0 +1,230 @@
+"""``jaxlc fit``: the whole spin-state fit and its outputs (see :mod:`jaxlc.inference.mcmc`).
+
+Output folder:
+
+* ``summary.json`` — ``period_s``, ``pole_ra_deg``, ``pole_dec_deg``,
+  ``phase_deg`` (at ``epoch_utc``), ``dmag``, ``noise_mag`` of the best mode
+  with 50 %/90 % intervals, the pole's credible radii, every mode found,
+  the periodogram, diagnostics (acceptance, τ, chain length in τ) and timings;
+* ``samples.parquet`` — posterior samples of every sampled mode (user units),
+  with ``weight`` (the mode's probability from its Laplace evidence, spread
+  over its samples: weighted, the table is the mixture posterior);
+* ``corner.png`` — pairwise posterior of the best mode;
+* ``fit.png`` — the data with the MAP model and residuals.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from jaxlc.inference import mcmc
+from jaxlc.inference.data import fit_data, soft_clip
+from jaxlc.inference.mcmc import FitSettings
+from jaxlc.inference.model import MC_NAMES, N_LM, spin_model, to_device
+from jaxlc.inference.period import analyse_period, candidate_periods, distinct_periods
+from jaxlc.inference.search import multistart
+from jaxlc.io.files import atomic_output
+from jaxlc.scene import Scene
+
+__all__ = ["FitSettings", "fit_spin", "write_outputs"]
+
+
+def fit_spin(
+    scene: Scene,
+    lightcurve: pd.DataFrame,
+    geometry: pd.DataFrame,
+    settings: FitSettings | None = None,
+    out_dir: str | Path | None = None,
+    log=None,
+) -> dict:
+    """Fit pole, period, phase, brightness offset and noise to an observed light curve.
+
+    Args:
+        scene: shape and materials (its attitude's ``body_axis`` is the spin axis).
+        lightcurve: light-curve table (``utc``, ``mag``, optional ``mag_err``, ``visible``).
+        geometry: the geometry table of the same rows.
+        settings: :class:`FitSettings`.
+        out_dir: where to write summary, samples and plots (None: nothing written).
+        log: optional callable(str) for progress lines.
+
+    Returns:
+        The summary dict (also ``summary.json``) with ``samples`` (DataFrame) added.
+    """
+    settings = settings or FitSettings()
+    log = log or (lambda msg: None)
+    rng = np.random.default_rng(settings.seed)
+    timings = {}
+    t0 = time.perf_counter()
+    data = fit_data(lightcurve, geometry, default_exposure_s=scene.exposure_s)
+    if settings.period_s is not None:
+        seeds = [settings.period_s]
+        period_info = {"given_period_s": settings.period_s}
+    else:
+        pr = analyse_period(
+            data.t_s,
+            data.mag,
+            min_period_s=settings.min_period_s,
+            max_period_s=settings.max_period_s,
+        )
+        lo, hi = pr.min_period_s, pr.max_period_s
+        seeds = _distinct(
+            [k * pr.ls_period_s for k in (1, 2, 3, 4)]
+            + [
+                k * p
+                for p in candidate_periods(data.t_s, soft_clip(data.mag, data.limit_mag), lo, hi)
+                for k in (1, 2)
+            ],
+            lo,
+            hi,
+        )
+        period_info = pr.summary()
+        log(
+            f"periodogram: peak {pr.ls_period_s:.4g} s (FAP {pr.false_alarm_probability:.1e}); "
+            f"seeds {', '.join(f'{s:.4g}' for s in seeds)} s"
+        )
+    timings["periodogram_s"] = time.perf_counter() - t0
+
+    t1 = time.perf_counter()
+    modes, reports = multistart(
+        scene,
+        data,
+        seeds,
+        n_starts=settings.n_starts,
+        search_samples=settings.search_samples,
+        search_steps=settings.search_steps,
+        refine_steps=settings.refine_steps,
+        rng=rng,
+        log=log,
+    )
+    timings["map_s"] = time.perf_counter() - t1
+    if np.all(data.mag_err == 0):  # χ² in units of the best mode's residual variance
+        var = modes[0].chi2 / max(data.n - N_LM, 1)
+        modes = [dataclasses.replace(m, chi2=m.chi2 / var) for m in modes]
+    best_chi2 = modes[0].chi2
+    log(
+        f"MAP: {len(modes)} distinct modes; best P = {modes[0].period_s:.5g} s, pole "
+        f"({modes[0].pole_radec_deg[0]:.1f}°, {modes[0].pole_radec_deg[1]:.1f}°)"
+    )
+
+    t2 = time.perf_counter()
+    sampled = [
+        i
+        for i, m in enumerate(modes)
+        if m.chi2 - best_chi2 < settings.mode_delta_chi2 and i < settings.mcmc_modes
+    ]
+    # One exact model for every sampled mode: the exposures as the render plan
+    # samples them for the fastest of their spins (one compilation).
+    model = spin_model(scene, data, min(modes[i].period_s for i in sampled), exact=True)
+    runs, tables = {}, []
+    for i in sampled:
+        log(f"emcee around mode {i} (Δχ² = {modes[i].chi2 - best_chi2:.1f})")
+        runs[i] = mcmc.run_emcee(model, data, modes[i], settings, rng, log=log)
+        tables.append(mcmc.samples_table(runs[i]["chain"], runs[i]["log_prob"], i))
+    weights = mcmc.mode_weights([runs[i]["log_evidence"] for i in sampled])
+    for i, w, table in zip(sampled, weights, tables, strict=True):
+        runs[i]["weight"] = float(w)
+        table["weight"] = w / len(table)  # sums to 1 over all samples
+    samples = pd.concat(tables, ignore_index=True)
+    timings["mcmc_s"] = time.perf_counter() - t2
+    timings["total_s"] = time.perf_counter() - t0
+
+    mode_rows = []
+    for i, m in enumerate(modes):
+        row = m.describe(best_chi2)
+        if i in runs:
+            r = runs[i]
+            row["weight"] = r["weight"]
+            row["mcmc"] = {
+                "intervals": mcmc.interval_summary(samples[samples["mode"] == i]),
+                "log_evidence": r["log_evidence"],
+                "acceptance": r["acceptance"],
+                "tau": dict(zip(MC_NAMES, map(float, r["tau"]), strict=True)),
+                "steps": r["steps"],
+                "burn_in": r["burn"],
+                "walkers": settings.walkers,
+                "chain_length_tau": r["chain_length_tau"],
+                "converged": r["converged"],
+                "seconds": r["seconds"],
+            }
+        mode_rows.append(row)
+    best = mode_rows[0]
+    iv = best["mcmc"]["intervals"]
+    summary = {
+        "period_s": iv["period_s"]["median"],
+        "pole_ra_deg": iv["pole_mean"]["ra_deg"],
+        "pole_dec_deg": iv["pole_mean"]["dec_deg"],
+        "phase_deg": iv["phase_deg"]["median"],
+        "dmag": iv["dmag"]["median"],
+        "noise_mag": iv["noise_mag"]["median"],
+        "epoch_utc": data.epoch_utc.isoformat(),
+        "intervals": iv,
+        "map": {k: best[k] for k in ("period_s", "pole_ra_deg", "pole_dec_deg", "phase_deg")},
+        "modes": mode_rows,
+        "diagnostics": {
+            k: best["mcmc"][k]
+            for k in (
+                "acceptance",
+                "tau",
+                "steps",
+                "burn_in",
+                "walkers",
+                "chain_length_tau",
+                "converged",
+            )
+        },
+        "periodogram": period_info,
+        "data": {"samples": data.n, "limit_mag": data.limit_mag},
+        "solver": [dataclasses.asdict(r) for r in reports],
+        "model": {
+            "subsamples": model.subsamples,
+            "facets": model.obj.n_facets,
+            "shadows": model.obj.shadow is not None,
+        },
+        "scene": scene.source,
+        "settings": dataclasses.asdict(settings),
+        "timings_s": timings,
+    }
+    if out_dir is not None:
+        write_outputs(Path(out_dir), summary, samples, model, data, modes[0])
+    summary["samples"] = samples
+    return summary
+
+
+def _distinct(periods, lo: float, hi: float) -> list[float]:
+    """Periods within [lo, 2 hi] (a multiple of the longest searched may be the spin), each
+    more than 1 % from the ones before it, in order."""
+    return distinct_periods(p for p in periods if lo <= p <= 2 * hi)
+
+
+def _clean(x):
+    if isinstance(x, dict):
+        return {k: _clean(v) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return [_clean(v) for v in x]
+    if isinstance(x, np.generic):
+        x = x.item()
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    return x
+
+
+def write_outputs(out_dir: Path, summary: dict, samples: pd.DataFrame, model, data, mode) -> None:
+    """summary.json, samples.parquet, corner.png and fit.png (each written atomically)."""
+
+    from jaxlc.io.tables import write_table
+    from jaxlc.plot import plot_corner, plot_fit
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    with atomic_output(out_dir / "summary.json") as tmp:
+        Path(tmp).write_text(json.dumps(_clean(summary), indent=2))
+    write_table(samples, out_dir / "samples.parquet")
+    plot_corner(samples[samples["mode"] == 0], out_dir / "corner.png")
+    m = np.asarray(model.magnitudes(to_device(model, mode.theta_lm)))
+    plot_fit(data.t_s, soft_clip(data.mag, data.limit_mag), m, out_dir / "fit.png", summary)

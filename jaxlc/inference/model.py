@@ -1,0 +1,314 @@
+"""The spin fit's forward model: the renderer's model with the spin as parameters.
+
+Parameters (a flat vector θ, shapes in brackets):
+
+* LM coordinates, ``θ_lm`` (6): pole as an unnormalised 3-vector u (its
+  direction is the inertial spin pole; drawn from N(0, I) it is isotropic),
+  ln(period_s), rotation phase φ (rad) at the fit epoch, and a magnitude
+  offset Δm (the brightness scale: size × albedo errors).
+* MCMC coordinates, ``θ_mc`` (6): (λ, sin β) of the pole (isotropic when
+  uniform), ln(period_s), φ, Δm and ln(noise_mag), the noise added in
+  quadrature to the data's own errors.
+
+The model magnitude of sample i is
+``m_i = c_i − 2.5 log10(⟨I/E⟩_i + I_floor) + Δm`` with
+``c_i = −26.74 − 2.5 log10(E_i / (d_i² C_sun))`` from the geometry and ⟨I/E⟩_i
+the exposure mean of :func:`jaxlc.rendering.kernel.exposure_intensity`: the
+object and its exposures come from :func:`jaxlc.rendering.prepare.prepare`,
+the same preparation :func:`jaxlc.render` uses, for the scene spinning about
+its ``body_axis`` with a trial period (which sets the sub-exposures through
+the render plan). Only the attitude is replaced per θ.
+
+On the device the period coordinate is relative: ln(P / P_ref) with P_ref
+the model's reference period (a float32 number, the one its float32 times are
+split by), so that float32 resolves the period to far better than float32's
+own 10⁻⁷ (a noise-free curve constrains it to ~10⁻⁸). The host keeps absolute
+float64 coordinates and converts at the device boundary (:func:`to_device`,
+:func:`from_device`).
+
+Samples far fainter than the rest (an end-on rocket body can drop 20 mag in
+the model, below any detection limit) would dominate a magnitude fit, so
+model and data are both softly clipped at ``limit_mag``
+(:func:`jaxlc.inference.data.soft_clip`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxlc.body.attitude import Spin, phase_at_offset_deg, pole_vector, reference_direction
+from jaxlc.body.mesh import Facets
+from jaxlc.inference.data import FitData, soft_clip
+from jaxlc.rendering.kernel import KernelInputs, SpaceObject, exposure_intensity
+from jaxlc.rendering.prepare import prepare
+from jaxlc.scene import Scene
+
+N_LM = 6
+N_MC = 6
+MC_NAMES = ("pole_lambda_rad", "pole_sin_beta", "ln_period_s", "phase_rad", "dmag", "ln_noise_mag")
+#: Intensity floor per m² of surface: 10⁻¹⁰ × the total area is 25 mag below a
+#: fully lit face, far below the soft clip, so it changes no sample above the
+#: limit by > 10⁻⁵ mag (a floor of 10⁻⁷ biased a CubeSat's faint plateau by 6 mmag
+#: and its period by 2.5 σ in the calibration study).
+FLOOR_PER_AREA = 1e-10
+
+
+class SpinModel(eqx.Module):
+    """A spin fit's forward model over its samples (a pytree).
+
+    Attributes:
+        obj: the traced object (its attitude is replaced per θ).
+        inputs: the fitted samples' exposures (times from the fit epoch, split
+            into turns of ``period_ref_s``).
+        period_ref_s: the reference period P_ref (s).
+        const_mag: (N,) magnitude of unit I/E per sample.
+        body_axis, body_ref: (3,) spin axis and reference direction in the body frame.
+        floor_m2_sr: intensity floor that keeps unlit samples finite in magnitude.
+        limit_mag: faint clipping level.
+    """
+
+    obj: SpaceObject
+    inputs: KernelInputs
+    period_ref_s: jax.Array
+    const_mag: jax.Array
+    body_axis: jax.Array
+    body_ref: jax.Array
+    floor_m2_sr: jax.Array
+    limit_mag: jax.Array
+
+    @property
+    def n(self) -> int:
+        return self.inputs.n_rows
+
+    @property
+    def subsamples(self) -> int:
+        return self.inputs.subsamples
+
+    def attitude(self, pole_vec, ln_period_ratio, phase) -> Spin:
+        """The spin of a pole vector, ln(P / P_ref) and the phase at the fit epoch."""
+        u = pole_vec / jnp.linalg.norm(pole_vec)
+        ra = jnp.arctan2(u[1], u[0])
+        dec = jnp.arctan2(u[2], jnp.hypot(u[0], u[1]))
+        return Spin(
+            body_axis=self.body_axis,
+            body_ref=self.body_ref,
+            pole_ra_rad=ra,
+            pole_dec_rad=dec,
+            period_s=self.period_ref_s,
+            phase_rad=phase,
+            period_offset_s=self.period_ref_s * jnp.expm1(ln_period_ratio),
+        )
+
+    def intensity(self, theta_lm, chunk=None):
+        """(N,) exposure-mean I/E (m² sr⁻¹) for device LM coordinates ``theta_lm``
+        (6,) (:func:`to_device`)."""
+        spin = self.attitude(theta_lm[:3], theta_lm[3], theta_lm[4])
+        obj = eqx.tree_at(lambda o: o.attitude, self.obj, spin)
+        return exposure_intensity(obj, self.inputs, chunk)
+
+    def magnitudes(self, theta_lm, chunk=None):
+        """(N,) model magnitudes, softly clipped at the faint limit.
+
+        ``chunk``: instants per block of the facet sum (static; default sized
+        for one curve, see :func:`jaxlc.rendering.kernel.time_chunk`). Under
+        ``vmap`` over W parameter vectors pass ``time_chunk(n_facets × W)``.
+        """
+        i = self.intensity(theta_lm, chunk)
+        m = self.const_mag - 2.5 * jnp.log10(i + self.floor_m2_sr) + theta_lm[5]
+        return soft_clip(m, self.limit_mag)
+
+
+def spin_model(
+    scene: Scene,
+    data: FitData,
+    period_s: float,
+    exact: bool = True,
+    directions: int = 128,
+    max_subsamples: int | None = None,
+    floor: bool = True,
+) -> SpinModel:
+    """The fit model of a scene over ``data``: exact (its facets, its shadows) or coarse.
+
+    Args:
+        scene: shape, materials and ``[render]`` options; ``[attitude] body_axis``
+            gives the spin axis in the body frame (a fixed-attitude scene spins
+            about body z).
+        data: the fitted samples and their geometry.
+        period_s: the trial period: the exposures are sampled as the render
+            plan would for this spin (the shortest period the model will see
+            needs the most sub-exposures), and it is the reference P_ref
+            (rounded to float32) of the device coordinates.
+        exact: False for the search model: facets merged into ``directions``
+            normal bins (:func:`coarsen_facets`) and no shadows.
+        max_subsamples: a cap on the sub-exposures per exposure (the search).
+        floor: add the intensity floor (off: exact magnitudes, +inf where dark).
+    """
+    period_ref = float(np.float32(period_s))  # exactly the device's reference
+    trial = scene.with_spin(period_ref, epoch_utc=data.epoch_utc)
+    options = scene.render
+    facets = None
+    if not exact:
+        options = dataclasses.replace(options, shadows="off")
+        facets = coarsen_facets(scene.body[1], directions)
+    if max_subsamples is not None:
+        options = dataclasses.replace(
+            options, max_subsamples=min(options.max_subsamples, max_subsamples)
+        )
+        if options.subsamples is not None:
+            options = dataclasses.replace(
+                options, subsamples=min(options.subsamples, max_subsamples)
+            )
+    prep = prepare(
+        trial, data.geometry, options, rows=data.rows, origin_utc=data.epoch_utc, facets=facets
+    )
+    b = np.asarray(trial.attitude.body_axis, np.float64)
+    area = float(scene.facets.areas_m2.sum())
+    f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
+    return SpinModel(
+        obj=prep.object,
+        inputs=prep.inputs,
+        period_ref_s=f32(period_ref),
+        const_mag=f32(data.const_mag),
+        body_axis=f32(b),
+        body_ref=f32(reference_direction(b)),
+        floor_m2_sr=f32(FLOOR_PER_AREA * area if floor else 0.0),
+        limit_mag=f32(data.limit_mag),
+    )
+
+
+# ---------------------------------------------------------------------------
+# The coarse model: facets clustered by normal
+
+
+def fibonacci_sphere(n: int) -> np.ndarray:
+    """(n, 3) nearly uniform unit vectors."""
+    k = np.arange(n) + 0.5
+    z = 1 - 2 * k / n
+    r = np.sqrt(1 - z**2)
+    phi = np.pi * (1 + 5**0.5) * k
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+
+
+def coarsen_facets(facets: Facets, directions: int = 64) -> Facets:
+    """Merge the facets of each part whose normals fall in one of ``directions`` bins.
+
+    A merged facet keeps the summed area, the area-weighted mean normal and
+    centroid, and its triangles (so the shadow table of a merged facet is the
+    area-weighted mean over all of them). Exact for facets with identical
+    normals; otherwise an approximation whose error grows with the bin size
+    relative to the sharpest lobe.
+    """
+    if facets.n_facets <= directions:
+        return facets
+    grid = fibonacci_sphere(directions)
+    bin_id = np.argmax(facets.normals @ grid.T, axis=1)
+    key = facets.part.astype(np.int64) * directions + bin_id
+    uniq, inv = np.unique(key, return_inverse=True)
+    a = facets.areas_m2
+    n_sum = np.zeros((len(uniq), 3))
+    np.add.at(n_sum, inv, facets.normals * a[:, None])
+    area = np.bincount(inv, weights=a)
+    c_sum = np.zeros((len(uniq), 3))
+    np.add.at(c_sum, inv, facets.centroids_m * a[:, None])
+    norm = np.linalg.norm(n_sum, axis=1, keepdims=True)
+    normals = np.where(norm > 0, n_sum / np.maximum(norm, 1e-300), grid[uniq % directions])
+    can_shadow = np.bincount(inv, weights=facets.can_shadow.astype(float)) > 0
+    tri = facets.triangle_facet
+    return dataclasses.replace(
+        facets,
+        normals=normals,
+        areas_m2=area,
+        centroids_m=c_sum / area[:, None],
+        part=(uniq // directions).astype(facets.part.dtype),
+        can_shadow=can_shadow,
+        triangle_facet=np.where(tri >= 0, inv[np.maximum(tri, 0)], -1),
+    )
+
+
+# ---------------------------------------------------------------------------
+# Coordinates
+
+
+def ln_period_ref(model: SpinModel) -> float:
+    """ln P_ref (float64) of a model's device coordinates."""
+    return math.log(float(model.period_ref_s))
+
+
+def to_device(model: SpinModel, theta, index: int = 3) -> jax.Array:
+    """Host coordinates (…, 6) float64 → the model's float32 device coordinates:
+    ln P (at ``index``: 3 for LM, 2 for MCMC coordinates) made relative to P_ref."""
+    t = np.array(theta, dtype=np.float64)
+    t[..., index] -= ln_period_ref(model)
+    return jnp.asarray(t, jnp.float32)
+
+
+def from_device(model: SpinModel, theta, index: int = 3) -> np.ndarray:
+    """The inverse of :func:`to_device` (float64 host coordinates)."""
+    t = np.array(theta, dtype=np.float64)
+    t[..., index] += ln_period_ref(model)
+    return t
+
+
+def lm_to_mc(theta_lm: np.ndarray, noise_mag) -> np.ndarray:
+    """(..., 6) LM coordinates (+ noise) → (..., 6) MCMC coordinates."""
+    t = np.asarray(theta_lm, np.float64)
+    u = t[..., :3] / np.linalg.norm(t[..., :3], axis=-1, keepdims=True)
+    lam = np.mod(np.arctan2(u[..., 1], u[..., 0]), 2 * np.pi)
+    return np.stack(
+        [
+            lam,
+            u[..., 2],
+            t[..., 3],
+            np.mod(t[..., 4], 2 * np.pi),
+            t[..., 5],
+            np.log(np.broadcast_to(noise_mag, lam.shape)),
+        ],
+        axis=-1,
+    )
+
+
+def mc_to_lm(theta_mc):
+    """(..., 6) MCMC → LM coordinates (works on numpy and JAX arrays)."""
+    xp = jnp if isinstance(theta_mc, jax.Array) else np
+    lam, z = theta_mc[..., 0], xp.clip(theta_mc[..., 1], -1.0, 1.0)
+    r = xp.sqrt(1 - z**2)
+    return xp.stack(
+        [r * xp.cos(lam), r * xp.sin(lam), z, theta_mc[..., 2], theta_mc[..., 3], theta_mc[..., 4]],
+        axis=-1,
+    )
+
+
+def pole_radec_deg(theta_lm) -> tuple[np.ndarray, np.ndarray]:
+    """Pole right ascension and declination (deg) of LM coordinates (..., 6)."""
+    t = np.asarray(theta_lm, np.float64)
+    u = t[..., :3] / np.linalg.norm(t[..., :3], axis=-1, keepdims=True)
+    return (
+        np.degrees(np.mod(np.arctan2(u[..., 1], u[..., 0]), 2 * np.pi)),
+        np.degrees(np.arcsin(np.clip(u[..., 2], -1, 1))),
+    )
+
+
+def angle_between_deg(a, b) -> np.ndarray:
+    """Angle (deg) between unit vectors (..., 3)."""
+    a = np.asarray(a) / np.linalg.norm(a, axis=-1, keepdims=True)
+    b = np.asarray(b) / np.linalg.norm(b, axis=-1, keepdims=True)
+    return np.degrees(np.arccos(np.clip(np.sum(a * b, axis=-1), -1, 1)))
+
+
+def truth_theta(scene: Scene, data: FitData) -> np.ndarray:
+    """(6,) LM host coordinates of a scene's own spin at the fit epoch (Δm = 0): the
+    truth of a fit to a light curve rendered from ``scene``."""
+    a = scene.attitude
+    if a.epoch_utc is None:  # the phase is given at the geometry's first row
+        offset = data.epoch_offset_s
+    else:
+        offset = (data.epoch_utc - a.epoch_utc).total_seconds()
+    phase = math.radians(phase_at_offset_deg(a.phase_deg, a.period_s, offset))
+    u = np.asarray(pole_vector(math.radians(a.pole_ra_deg), math.radians(a.pole_dec_deg)))
+    return np.array([*u, math.log(a.period_s), phase, 0.0])
