@@ -18,12 +18,9 @@ Every path that makes a light curve calls one preparation
 (:func:`prepare`) and one kernel entry (:func:`exposure_intensity`).
 """
 
-from importlib import metadata as _metadata
+from jaxlc.io.provenance import jaxlc_version
 
-try:
-    __version__ = _metadata.version("jaxlc")
-except _metadata.PackageNotFoundError:  # running from a source tree without install
-    __version__ = "0+unknown"
+__version__ = jaxlc_version()  # "0+unknown" in a source tree without install
 
 from jaxlc.body.attitude import AbstractAttitude, Fixed, Spin
 from jaxlc.body.brdf import AbstractBRDF, ASGlossy, AshikhminShirley, Lambert

@@ -15,7 +15,6 @@ def render_options(scene, shadows, shadow_grid, subsamples):
     """The scene's [render] options with the command line's overrides."""
     import dataclasses
 
-    from jaxlc.body.shadow import ShadowSettings
     from jaxlc.errors import JaxlcError
 
     opts = scene.render
@@ -23,7 +22,6 @@ def render_options(scene, shadows, shadow_grid, subsamples):
         opts = dataclasses.replace(opts, shadows=shadows)
     if shadow_grid is not None:
         opts = dataclasses.replace(opts, shadow=dataclasses.replace(opts.shadow, grid=shadow_grid))
-        ShadowSettings.__post_init__(opts.shadow)
     if subsamples is not None:
         if subsamples == "auto":
             opts = dataclasses.replace(opts, blur="auto", subsamples=None)

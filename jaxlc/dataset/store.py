@@ -1,4 +1,4 @@
-"""The Zarr v3 store of a bulk dataset: layout, shard writes, reading back.
+"""The Zarr v3 store of a bulk dataset: layout and shard writes (reading: ``reader``).
 
 Layout (N curves of T samples, chunks of one shard along N)::
 
@@ -235,10 +235,11 @@ def check_store(path: Path, config) -> None:
             f"{path} exists and is not a jaxlc dataset (format {attrs.get('format')!r}); "
             "choose another output path"
         )
-    if attrs.get("fingerprint") != config.fingerprint():
+    fingerprint = config.fingerprint()  # reads and hashes every mesh file
+    if attrs.get("fingerprint") != fingerprint:
         raise DatasetError(
             f"{path} was made from a different config, count, seed or mesh files "
-            f"(fingerprint {attrs.get('fingerprint')} ≠ {config.fingerprint()}, from "
+            f"(fingerprint {attrs.get('fingerprint')} ≠ {fingerprint}, from "
             f"{attrs.get('config_source')}); resume with the same config and options, or "
             "write to a new path"
         )
@@ -261,7 +262,3 @@ def write_shard(path: str | Path, shard: int, start: int, arrays: dict, labels: 
         values = labels[name].to_numpy()
         group[name][start:stop] = values.astype(object) if dtype == "str" else values
     root["shards"]["done"][shard] = True  # last: a partial shard is never marked done
-
-
-# ---------------------------------------------------------------------------
-# Reading back

@@ -17,10 +17,9 @@ import numpy as np
 import pandas as pd
 
 from jaxlc.errors import JaxlcError
-from jaxlc.io.tables import validate_geometry
 from jaxlc.io.utc import parse_utc
 from jaxlc.rendering import photometry
-from jaxlc.rendering.observation import GeometryArrays, geometry_arrays
+from jaxlc.rendering.observation import GeometryArrays, as_geometry
 
 #: Width (mag) of the soft clip at the faint limit.
 CLIP_WIDTH_MAG = 0.1
@@ -107,10 +106,9 @@ def fit_data(
     Raises:
         JaxlcError: when rows do not match, or fewer than 20 usable samples remain.
     """
-    geometry = validate_geometry(geometry)
+    geo, geometry = as_geometry(geometry, default_exposure_s)
     if column not in lightcurve.columns:
         raise JaxlcError(f"light curve has no column {column!r}")
-    geo = geometry_arrays(geometry, default_exposure_s)
     g_utc = parse_utc(geometry["utc"], "geometry table utc")
     l_utc = parse_utc(lightcurve["utc"].astype(str), "light curve utc")
     pos = g_utc.get_indexer(l_utc, method="nearest", tolerance=pd.Timedelta("1ms"))

@@ -66,9 +66,7 @@ class RenderPlan:
         return "\n".join(lines)
 
 
-def make_plan(
-    scene, geo, options: RenderOptions | None = None, rows=None, facets=None
-) -> RenderPlan:
+def make_plan(scene, geo, options: RenderOptions | None = None, facets=None) -> RenderPlan:
     """Decide shadows, sub-exposures and rows for ``scene`` over ``geo``
     (:class:`~jaxlc.rendering.prepare.GeometryArrays`).
 
@@ -76,7 +74,6 @@ def make_plan(
         scene: the scene (its materials, mesh and attitude's rotation rate).
         geo: the geometry.
         options: shadows and blur (default :class:`RenderOptions`).
-        rows: the rows to render (default: the visible ones).
         facets: facets to plan for instead of the mesh's own (a coarse model).
     """
     options = options or RenderOptions()
@@ -95,7 +92,7 @@ def make_plan(
             f"(≤ {s.max_subpoints} per facet), {s.interpolation}"
         )
         shadow = s
-    idx = np.flatnonzero(geo.visible) if rows is None else np.asarray(rows, np.int64)
+    idx = np.flatnonzero(geo.visible)
     blur, blur_reason = choose_blur(
         options, materials, facets, shadow is not None, scene.attitude.rate_rad_s(), geo, idx
     )

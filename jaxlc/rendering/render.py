@@ -10,7 +10,6 @@ Invisible rows keep their row with NaN values.
 
 from __future__ import annotations
 
-from importlib import metadata
 from pathlib import Path
 
 import jax
@@ -18,6 +17,7 @@ import numpy as np
 import pandas as pd
 
 from jaxlc.errors import JaxlcError
+from jaxlc.io.provenance import jaxlc_version
 from jaxlc.rendering import photometry
 from jaxlc.rendering.kernel import exposure_intensity
 from jaxlc.rendering.observation import GeometryArrays
@@ -91,7 +91,7 @@ def render(
             "frame": prepared.table.attrs.get("frame", "unknown"),
             "scene": prepared.scene.source,
             "precision": precision,
-            "generator": f"jaxlc {_version()}",
+            "generator": f"jaxlc {jaxlc_version()}",
             "plan": " | ".join(line.split(None, 1)[1] for line in plan.explain().splitlines()),
         }
     )
@@ -119,10 +119,3 @@ def lightcurve_table(
             **extra,
         }
     )
-
-
-def _version() -> str:
-    try:
-        return metadata.version("jaxlc")
-    except metadata.PackageNotFoundError:
-        return "0+unknown"
