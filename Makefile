@@ -35,8 +35,9 @@ demo: setup
 		-o $(DEMO)/geometry.csv
 	$(BIN)/jaxlc render s4_falcon9 $(DEMO)/geometry.csv \
 		-o $(DEMO)/lightcurve.csv --plot $(DEMO)/lightcurve.png
+	$(BIN)/jaxlc period $(DEMO)/lightcurve.csv --plot $(DEMO)/period_s4.png
 	$(BIN)/jaxlc period tests/data/mmt/10025_10114859.txt --plot $(DEMO)/period.png
-	@echo "demo output: $(DEMO)/geometry.csv, $(DEMO)/lightcurve.csv, $(DEMO)/lightcurve.png, $(DEMO)/period.png"
+	@echo "demo output: $(DEMO)/geometry.csv, $(DEMO)/lightcurve.csv, $(DEMO)/lightcurve.png, $(DEMO)/period_s4.png, $(DEMO)/period.png"
 
 ## test: the whole suite
 test: setup

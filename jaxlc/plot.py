@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -65,50 +66,87 @@ def _shade_invisible(ax, t, visible):
         ax.axvspan(t[start], t[stop - 1], color="0.85", lw=0, zorder=0)
 
 
-def plot_period(result, t_s, mag, path: str | Path, title: str | None = None) -> Path:
-    """Periodogram (power against period) above the curve folded at the decided period.
+def plot_period(
+    result, path: str | Path, title: str | None = None, ylabel: str = "magnitude"
+) -> Path:
+    """Periodogram (power against period) above the curve folded at the spin period.
+
+    When no period is significant the fold uses the best candidate and says
+    so. The catalogue period (if any) is drawn over the spin line, wider and
+    dashed, so that it stays visible when the two coincide.
 
     Args:
-        result: a :class:`jaxlc.inference.period.PeriodResult`.
-        t_s, mag: (N,) the samples that were analysed (s, mag).
+        result: a :class:`jaxlc.inference.period.PeriodResult` (its analysed samples).
+        ylabel: the magnitude's name (MMT tracks: ``StdMag``, normalised to 1,000 km).
     """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from jaxlc.inference.period import fold_phase
+    from jaxlc.inference.harmonics import fourier_design
+    from jaxlc.inference.period import fold_phase, format_p
 
-    fig, (ax, ax2) = plt.subplots(2, 1, figsize=(8, 7))
-    period = 1.0 / result.frequency_hz
-    ax.plot(period, result.power, lw=0.7, color="tab:blue")
-    ax.set_xscale("log")
-    ax.axvline(result.ls_period_s, color="tab:red", ls="--", lw=1, label="periodogram peak")
-    if result.harmonic_factor == 2:
-        ax.axvline(result.period_s, color="tab:green", lw=1.2, label="spin period (2 × peak)")
-    if np.isfinite(result.catalogue_period_s):
-        ax.axvline(result.catalogue_period_s, color="0.4", ls=":", lw=1.2, label="catalogue")
+    fig, (ax, ax2) = plt.subplots(2, 1, figsize=(8, 7.5))
+    if len(result.power):
+        ax.plot(1.0 / result.frequency_hz, result.power, lw=0.7, color="tab:blue")
+        ax.set_xscale("log")
+        ax.axvline(result.ls_period_s, color="tab:red", ls="--", lw=1, label="periodogram peak")
+    p_fold = result.period_s if result.periodic else result.best_period_s
+    if np.isfinite(p_fold):
+        label = (
+            f"spin period ({result.harmonic_factor} × peak)"
+            if result.periodic
+            else "best candidate (not significant)"
+        )
+        ax.axvline(p_fold, color="tab:green", lw=2.5, alpha=0.7, label=label, zorder=2)
+    if np.isfinite(result.catalogue_period_s) and result.catalogue_period_s > 0:
+        ax.axvline(
+            result.catalogue_period_s,
+            color="k",
+            ls=(0, (4, 3)),
+            lw=1.3,
+            label="catalogue",
+            zorder=3,
+        )
     ax.set_xlabel("period (s)")
     ax.set_ylabel("Lomb–Scargle power")
     ax.legend(fontsize="small", frameon=False)
-    ax.set_title(
-        title
-        or f"P = {result.period_s:.5g} s (peak {result.ls_period_s:.5g} s, "
-        f"FAP {result.false_alarm_probability:.1e})"
+    fap = format_p(result.false_alarm_probability)
+    head = (
+        f"P = {result.period_s:.5g} ± {result.period_err_s:.2g} s"
+        if result.periodic
+        else f"no period ({result.verdict})"
     )
-    t = np.asarray(t_s)
-    y = np.asarray(mag)
-    phase = fold_phase(t - t.min(), result.period_s)
-    ax2.scatter(phase, y, s=3, c=t - t.min(), cmap="viridis", alpha=0.6)
-    bins = np.linspace(0, 1, 41)
-    idx = np.digitize(phase, bins) - 1
-    med = [np.median(y[idx == b]) if np.any(idx == b) else np.nan for b in range(40)]
-    ax2.plot(0.5 * (bins[1:] + bins[:-1]), med, color="k", lw=1.5, label="binned median")
+    ax.set_title(title or f"{head}; FAP {fap}, ΔBIC {result.delta_bic:.1f}", fontsize=10)
+    t = np.asarray(result.sample_t_s if result.sample_t_s is not None else [])
+    y = np.asarray(result.sample_mag if result.sample_mag is not None else [])
+    if len(t) and np.isfinite(p_fold):
+        phase = fold_phase(t - t.min(), p_fold)
+        trend = result.trend_mag - np.median(result.trend_mag)
+        sc = ax2.scatter(phase, y - trend, s=3, c=t - t.min(), cmap="viridis", alpha=0.7)
+        fig.colorbar(sc, ax=ax2, label="time since first sample (s)", pad=0.01)
+        if result.n_groups == 1 and result.n_harmonics > 0:
+            # the series alone, fitted to the detrended samples, on a fine phase grid
+            harmonics = range(1, result.n_harmonics + 1)
+            a = fourier_design(phase, 1.0, harmonics)
+            coef, *_ = np.linalg.lstsq(a, y - trend, rcond=None)
+            grid = np.linspace(0, 1, 400)
+            ax2.plot(
+                grid,
+                fourier_design(grid, 1.0, harmonics) @ coef,
+                "k",
+                lw=0.8,
+                label=f"{result.n_harmonics}-harmonic series",
+            )
+            ax2.legend(fontsize="small", frameon=False, loc="upper right")
+        ax2.set_xlabel(f"rotational phase (P = {p_fold:.5g} s); trend removed")
+    else:
+        ax2.plot(t, y, ".", ms=2)
+        ax2.set_xlabel("time (s)")
     ax2.invert_yaxis()
-    ax2.set_xlabel(f"rotational phase (P = {result.period_s:.5g} s; colour: time)")
-    ax2.set_ylabel("magnitude")
-    ax2.legend(fontsize="small", frameon=False)
-    ax2.text(0.01, 0.02, result.decision, transform=ax2.transAxes, fontsize=7, wrap=True)
+    ax2.set_ylabel(ylabel)
+    ax2.set_title(textwrap.fill(result.decision, 120), fontsize=7, loc="left")
     return save_figure(fig, path, dpi=110)
 
 

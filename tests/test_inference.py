@@ -11,14 +11,9 @@ import pytest
 
 import jaxlc
 from jaxlc.errors import JaxlcError, TableError
-from jaxlc.inference.period import analyse_period
 from jaxlc.io.observations import read_mmt, read_observations
 
 DATA = Path(__file__).parent / "data"
-MMT = {
-    "10025_10114859.txt": 11.7586764,  # ATLAS CENTAUR R/B, catalogue period (s)
-    "32295_9578905.txt": 1.240248,  # ARIANE 5 R/B
-}
 
 
 # ---------------------------------------------------------------------------
@@ -71,74 +66,6 @@ def test_mmt_reader_requires_its_header(tmp_path):
         read_mmt(p)
     with pytest.raises(TableError, match="neither"):
         read_observations(p)
-
-
-# ---------------------------------------------------------------------------
-# Period analysis
-
-
-def _samples(n=1500, span=600.0, seed=0):
-    rng = np.random.default_rng(seed)
-    return np.sort(rng.uniform(0, span, n)), rng
-
-
-def test_period_two_unequal_maxima_per_turn_is_twice_the_peak():
-    t, rng = _samples()
-    p = 37.3
-    y = 0.4 * np.cos(4 * np.pi * t / p) + 0.12 * np.cos(2 * np.pi * t / p + 1.0)
-    y = y + 0.05 * rng.standard_normal(t.size)
-    r = analyse_period(t, y)
-    assert r.ls_period_s == pytest.approx(p / 2, rel=2e-3)
-    assert r.harmonic_factor == 2
-    assert r.period_s == pytest.approx(p, rel=2e-3)
-    assert r.false_alarm_probability < 1e-10
-
-
-def test_period_identical_halves_keep_the_peak_and_flag_the_double():
-    t, rng = _samples(seed=1)
-    p = 37.3
-    y = 0.4 * np.cos(4 * np.pi * t / p) + 0.05 * rng.standard_normal(t.size)
-    r = analyse_period(t, y)
-    assert r.harmonic_factor == 1
-    assert r.period_s == pytest.approx(p / 2, rel=2e-3)
-    assert r.alternative_period_s == pytest.approx(p, rel=2e-3)
-
-
-def test_period_of_noise_has_a_large_false_alarm_probability():
-    t, rng = _samples(seed=2)
-    r = analyse_period(t, 0.05 * rng.standard_normal(t.size))
-    assert r.false_alarm_probability > 0.01
-
-
-def test_period_rejects_too_few_samples():
-    with pytest.raises(JaxlcError, match="at least 10"):
-        analyse_period(np.arange(5.0), np.zeros(5))
-
-
-@pytest.mark.parametrize("name", sorted(MMT))
-def test_period_recovers_the_mmt_period_or_flags_half(name):
-    from jaxlc.io.observations import observed_samples
-
-    obs = read_observations(DATA / "mmt" / name)
-    t, y, _ = observed_samples(obs, "std_mag")
-    r = analyse_period(t, y)
-    true = MMT[name]
-    if r.harmonic_factor == 2:
-        assert r.period_s == pytest.approx(true, rel=0.01)
-    else:  # the half period, flagged: the alternative is the catalogue's
-        assert r.period_s == pytest.approx(true / 2, rel=0.01)
-        assert r.alternative_period_s == pytest.approx(true, rel=0.01)
-
-
-def test_period_cli_json(capsys):
-    from jaxlc.cli import main
-
-    assert main(["period", str(DATA / "mmt" / "10025_10114859.txt"), "--json"]) == 0
-    out = json.loads(capsys.readouterr().out)
-    for key in ("period_s", "ls_period_s", "false_alarm_probability", "harmonic_factor"):
-        assert key in out
-    assert out["harmonic_factor"] in (1, 2)
-    assert out["period_s"] == pytest.approx(MMT["10025_10114859.txt"], rel=0.01)
 
 
 # ---------------------------------------------------------------------------
@@ -233,6 +160,10 @@ def test_fit_recovers_spin_state(cubesat_case, tmp_path):
     for key in ("period_s", "pole_ra_deg", "pole_dec_deg", "modes", "diagnostics", "intervals"):
         assert key in summary
     assert summary["diagnostics"]["acceptance"] > 0.05
+    # the reported mode is the one of highest posterior weight
+    weights = [m["weight"] for m in summary["modes"] if "weight" in m]
+    assert summary["best_weight"] == max(weights) == summary["modes"][0]["weight"]
+    assert r["period_s"] <= np.ptp(lc["t_s"][lc["visible"]])  # one turn within the span
     # Every solve's outcome is reported: search, reversed-pole search, refinement.
     stages = {s["stage"]: s for s in summary["solver"]}
     assert set(stages) == {"search", "reversed", "refine"}
@@ -242,6 +173,17 @@ def test_fit_recovers_spin_state(cubesat_case, tmp_path):
     assert summary["model"]["subsamples"] > 1  # the exposures are modelled
     for f in ("samples.parquet", "corner.png", "fit.png"):
         assert (tmp_path / f).stat().st_size > 0
+
+
+def test_fit_refuses_a_curve_that_does_not_vary(cubesat_case):
+    """A constant light curve has no spin to fit: one clear error, before any solve."""
+    from jaxlc.inference.fit import fit_spin
+
+    scene, geo, lc = cubesat_case
+    flat = lc.copy()
+    flat["mag"] = 7.0
+    with pytest.raises(JaxlcError, match="does not vary"):
+        fit_spin(scene, flat, geo)
 
 
 def test_failed_solves_are_counted_and_left_out(cubesat_case):

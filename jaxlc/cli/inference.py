@@ -26,15 +26,28 @@ def period(
         typer.Option(help="Magnitude column (default: std_mag for MMT tracks, else mag)."),
     ] = None,
     min_period_s: Annotated[float | None, typer.Option(help="Shortest period searched.")] = None,
-    max_period_s: Annotated[float | None, typer.Option(help="Longest period searched.")] = None,
+    max_period_s: Annotated[
+        float | None, typer.Option(help="Longest period searched (at most half the span).")
+    ] = None,
     detrend: Annotated[
-        int, typer.Option(help="Degree of the slow polynomial trend removed (-1: mean only).")
+        int, typer.Option(help="Degree of the slow polynomial trend removed (0: the mean).")
     ] = 2,
+    permutations: Annotated[
+        int, typer.Option(help="Most block shuffles behind the false-alarm probability (≥ 30).")
+    ] = 300,
+    seed: Annotated[int, typer.Option(help="Random seed of the shuffles.")] = 0,
 ):
-    """Spin period of an observed light curve: Lomb–Scargle, FAP and the P vs 2P decision."""
+    """Spin period of an observed light curve, or "no period" when the data do not hold one.
+
+    A period is reported only when a trend + Fourier-series model at it beats
+    the trend alone (ΔBIC > 10, effective samples) and block-shuffled data
+    rarely reach its periodogram peak (FAP < 0.01). Candidates are 1–4 × the
+    strongest periodogram peaks. JSON: "period_s" is null and "variable"
+    says whether the curve varies at all when no period is found.
+    """
     import json as _json
 
-    from jaxlc.inference.period import analyse_period
+    from jaxlc.inference.period import analyse_period, format_p
     from jaxlc.io.observations import observed_samples, read_observations
 
     obs = read_observations(lightcurve)
@@ -47,12 +60,15 @@ def period(
         min_period_s=min_period_s,
         max_period_s=max_period_s,
         detrend_degree=detrend,
+        n_permutations=permutations,
+        seed=seed,
         catalogue_period_s=float(obs.attrs.get("catalogue_period_s", float("nan"))),
     )
     if plot is not None:
         from jaxlc.plot import plot_period
 
-        plot_period(result, t, y, plot, title=None)
+        ylabel = "StdMag (MMT: mag at 1,000 km)" if col == "std_mag" else col
+        plot_period(result, plot, ylabel=ylabel)
     summary = {"file": str(lightcurve), "column": col, **result.summary()}
     if json_out:
         print(_json.dumps(summary))
@@ -61,21 +77,29 @@ def period(
 
     table = Table(title=f"period of {lightcurve.name}", show_header=False)
     for key in (
+        "verdict",
         "period_s",
-        "ls_period_s",
-        "ls_period_err_s",
+        "period_err_s",
+        "best_period_s",
         "harmonic_factor",
         "alternative_period_s",
+        "ls_period_s",
         "false_alarm_probability",
+        "false_alarm_probability_white",
         "delta_bic",
-        "halves_p",
-        "amplitude_mag",
+        "effective_samples",
         "n_samples",
         "span_s",
         "catalogue_period_s",
     ):
         v = summary[key]
-        table.add_row(key, "—" if v is None else (f"{v:.6g}" if isinstance(v, float) else str(v)))
+        if v is None:
+            text = "—"
+        elif key.startswith("false_alarm"):
+            text = format_p(v)
+        else:
+            text = f"{v:.6g}" if isinstance(v, float) else str(v)
+        table.add_row(key, text)
     out = console(stderr=False)
     out.print(table)
     out.print(result.decision, highlight=False)
@@ -131,16 +155,38 @@ def fit(
     lc = jaxlc.read_lightcurve(lightcurve)
     geo = jaxlc.read_geometry(geometry)
     enable_persistent_cache()
-    result = fit_spin(
-        sc, lc, geo, settings, out_dir=output, log=lambda m: err.print(m, highlight=False)
-    )
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    with Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        TextColumn("{task.completed}/{task.total} steps"),
+        TimeElapsedColumn(),
+        console=err,
+        transient=True,
+    ) as bar:
+        task = bar.add_task("spin fit", total=None)
+
+        def progress(stage: str, done: int, total: int) -> None:
+            bar.update(task, description=stage, completed=done, total=total)
+
+        result = fit_spin(
+            sc,
+            lc,
+            geo,
+            settings,
+            out_dir=output,
+            log=lambda m: bar.console.print(m, highlight=False),
+            progress=progress,
+        )
     iv = result["intervals"]
     d = result["diagnostics"]
     err.print(
         f"period {result['period_s']:.6g} s [90%: {iv['period_s']['p05']:.6g}, "
         f"{iv['period_s']['p95']:.6g}], pole ({result['pole_ra_deg']:.1f}°, "
         f"{result['pole_dec_deg']:.1f}°) ± {iv['pole_radius_deg']['r90']:.1f}° (90%), "
-        f"{len(result['modes'])} modes; chain {d['chain_length_tau']:.0f} τ, acceptance "
+        f"{len(result['modes'])} modes (best weight {result['best_weight']:.2f}); "
+        f"chain {d['chain_length_tau']:.0f} τ, acceptance "
         f"{d['acceptance']:.2f}; {result['timings_s']['total_s']:.1f} s → {output}",
         highlight=False,
     )

@@ -73,6 +73,12 @@ class FitData:
         return self.geometry.t_mid_s[self.rows] - self.epoch_offset_s
 
     @property
+    def span_s(self) -> float:
+        """Seconds from the first to the last fitted sample (at least one exposure)."""
+        t = self.t_s
+        return max(float(np.ptp(t)), 1e-3) if len(t) else 1e-3
+
+    @property
     def const_mag(self) -> np.ndarray:
         """(N,) the magnitude of unit I/E: −26.74 − 2.5 log10(E / (d² C_sun))."""
         g = self.geometry

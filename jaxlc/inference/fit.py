@@ -4,12 +4,13 @@ Output folder:
 
 * ``summary.json`` — ``period_s``, ``pole_ra_deg``, ``pole_dec_deg``,
   ``phase_deg`` (at ``epoch_utc``), ``dmag``, ``noise_mag`` of the best mode
+  (``best_mode``: the one of highest posterior weight, ``best_weight``)
   with 50 %/90 % intervals, the pole's credible radii, every mode found,
   the periodogram, diagnostics (acceptance, τ, chain length in τ) and timings;
 * ``samples.parquet`` — posterior samples of every sampled mode (user units),
   with ``weight`` (the mode's probability from its Laplace evidence, spread
   over its samples: weighted, the table is the mixture posterior);
-* ``corner.png`` — pairwise posterior of the best mode;
+* ``corner.png`` — pairwise posterior of the best mode (highest posterior weight);
 * ``fit.png`` — the data with the MAP model and residuals.
 """
 
@@ -24,11 +25,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from jaxlc.errors import JaxlcError
 from jaxlc.inference import mcmc
 from jaxlc.inference.data import fit_data, soft_clip
 from jaxlc.inference.mcmc import FitSettings
 from jaxlc.inference.model import MC_NAMES, N_LM, spin_model, to_device
-from jaxlc.inference.period import analyse_period, candidate_periods, distinct_periods
+from jaxlc.inference.period import analyse_period, distinct_periods
 from jaxlc.inference.search import multistart
 from jaxlc.io.files import atomic_output
 from jaxlc.scene import Scene
@@ -43,6 +45,7 @@ def fit_spin(
     settings: FitSettings | None = None,
     out_dir: str | Path | None = None,
     log=None,
+    progress=None,
 ) -> dict:
     """Fit pole, period, phase, brightness offset and noise to an observed light curve.
 
@@ -52,13 +55,15 @@ def fit_spin(
         geometry: the geometry table of the same rows.
         settings: :class:`FitSettings`.
         out_dir: where to write summary, samples and plots (None: nothing written).
-        log: optional callable(str) for progress lines.
+        log: optional callable(str) for a few lines per stage.
+        progress: optional callable(stage: str, done: int, total: int) for a progress bar.
 
     Returns:
         The summary dict (also ``summary.json``) with ``samples`` (DataFrame) added.
     """
     settings = settings or FitSettings()
     log = log or (lambda msg: None)
+    progress = progress or (lambda stage, done, total: None)
     rng = np.random.default_rng(settings.seed)
     timings = {}
     t0 = time.perf_counter()
@@ -73,21 +78,21 @@ def fit_spin(
             min_period_s=settings.min_period_s,
             max_period_s=settings.max_period_s,
         )
-        lo, hi = pr.min_period_s, pr.max_period_s
-        seeds = _distinct(
-            [k * pr.ls_period_s for k in (1, 2, 3, 4)]
-            + [
-                k * p
-                for p in candidate_periods(data.t_s, soft_clip(data.mag, data.limit_mag), lo, hi)
-                for k in (1, 2)
-            ],
-            lo,
-            hi,
-        )
+        if not pr.variable:
+            raise JaxlcError(
+                f"spin fit: the light curve does not vary beyond its noise and trend "
+                f"({pr.decision}); there is no spin to fit. Give --period-s to fit anyway"
+            )
+        # The candidates the period analysis scored (multiples of its peaks), best first,
+        # and the double of the best (two identical halves look like one).
+        ranked = [c["period_s"] for c in pr.candidates]
+        seeds = _distinct([*ranked[:6], 2 * pr.best_period_s], pr.min_period_s, pr.span_s)
         period_info = pr.summary()
         log(
-            f"periodogram: peak {pr.ls_period_s:.4g} s (FAP {pr.false_alarm_probability:.1e}); "
-            f"seeds {', '.join(f'{s:.4g}' for s in seeds)} s"
+            f"period analysis: {pr.verdict}, best {pr.best_period_s:.4g} s "
+            f"(FAP {pr.false_alarm_probability:.1e}); seeds "
+            + ", ".join(f"{s:.4g}" for s in seeds)
+            + " s"
         )
     timings["periodogram_s"] = time.perf_counter() - t0
 
@@ -104,6 +109,14 @@ def fit_spin(
         log=log,
     )
     timings["map_s"] = time.perf_counter() - t1
+    # At least one turn within the data: a longer period is not a spin this curve shows.
+    within = [m for m in modes if m.period_s <= data.span_s]
+    if not within:
+        raise JaxlcError(
+            f"spin fit: every mode has a period beyond the data span ({data.span_s:.4g} s; "
+            f"best {modes[0].period_s:.4g} s): the curve does not show one turn"
+        )
+    modes = within
     if np.all(data.mag_err == 0):  # χ² in units of the best mode's residual variance
         var = modes[0].chi2 / max(data.n - N_LM, 1)
         modes = [dataclasses.replace(m, chi2=m.chi2 / var) for m in modes]
@@ -123,9 +136,18 @@ def fit_spin(
     # samples them for the fastest of their spins (one compilation).
     model = spin_model(scene, data, min(modes[i].period_s for i in sampled), exact=True)
     runs, tables = {}, []
-    for i in sampled:
+    for n, i in enumerate(sampled):
+        stage = f"emcee mode {n + 1}/{len(sampled)} (P {modes[i].period_s:.4g} s)"
         log(f"emcee around mode {i} (Δχ² = {modes[i].chi2 - best_chi2:.1f})")
-        runs[i] = mcmc.run_emcee(model, data, modes[i], settings, rng, log=log)
+        runs[i] = mcmc.run_emcee(
+            model,
+            data,
+            modes[i],
+            settings,
+            rng,
+            log=log,
+            progress=lambda steps, total, _length, s=stage: progress(s, steps, total),
+        )
         tables.append(mcmc.samples_table(runs[i]["chain"], runs[i]["log_prob"], i))
     weights = mcmc.mode_weights([runs[i]["log_evidence"] for i in sampled])
     for i, w, table in zip(sampled, weights, tables, strict=True):
@@ -137,7 +159,7 @@ def fit_spin(
 
     mode_rows = []
     for i, m in enumerate(modes):
-        row = m.describe(best_chi2)
+        row = {"mode": i, **m.describe(best_chi2)}
         if i in runs:
             r = runs[i]
             row["weight"] = r["weight"]
@@ -154,6 +176,10 @@ def fit_spin(
                 "seconds": r["seconds"],
             }
         mode_rows.append(row)
+    # The best mode is the one of highest posterior weight (not of least χ²: a
+    # narrow mode can fit best and still hold little probability). Modes are
+    # listed by weight, the unsampled ones after them by χ².
+    mode_rows.sort(key=lambda r: (-r.get("weight", -1.0), r["chi2"]))
     best = mode_rows[0]
     iv = best["mcmc"]["intervals"]
     summary = {
@@ -166,6 +192,8 @@ def fit_spin(
         "epoch_utc": data.epoch_utc.isoformat(),
         "intervals": iv,
         "map": {k: best[k] for k in ("period_s", "pole_ra_deg", "pole_dec_deg", "phase_deg")},
+        "best_mode": best["mode"],
+        "best_weight": best["weight"],
         "modes": mode_rows,
         "diagnostics": {
             k: best["mcmc"][k]
@@ -192,15 +220,15 @@ def fit_spin(
         "timings_s": timings,
     }
     if out_dir is not None:
-        write_outputs(Path(out_dir), summary, samples, model, data, modes[0])
+        write_outputs(Path(out_dir), summary, samples, model, data, modes[best["mode"]])
     summary["samples"] = samples
     return summary
 
 
 def _distinct(periods, lo: float, hi: float) -> list[float]:
-    """Periods within [lo, 2 hi] (a multiple of the longest searched may be the spin), each
-    more than 1 % from the ones before it, in order."""
-    return distinct_periods(p for p in periods if lo <= p <= 2 * hi)
+    """Periods within [lo, hi] (at most the span: one turn seen), each more than 1 % from the
+    ones before it, in order."""
+    return distinct_periods(p for p in periods if lo <= p <= hi)
 
 
 def _clean(x):
@@ -225,6 +253,6 @@ def write_outputs(out_dir: Path, summary: dict, samples: pd.DataFrame, model, da
     with atomic_output(out_dir / "summary.json") as tmp:
         Path(tmp).write_text(json.dumps(_clean(summary), indent=2))
     write_table(samples, out_dir / "samples.parquet")
-    plot_corner(samples[samples["mode"] == 0], out_dir / "corner.png")
+    plot_corner(samples[samples["mode"] == summary["best_mode"]], out_dir / "corner.png")
     m = np.asarray(model.magnitudes(to_device(model, mode.theta_lm)))
     plot_fit(data.t_s, soft_clip(data.mag, data.limit_mag), m, out_dir / "fit.png", summary)

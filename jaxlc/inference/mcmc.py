@@ -107,14 +107,15 @@ def _log_prob(model: SpinModel, mag, err2, bounds, thetas):
 
 
 def log_prob_fn(model: SpinModel, data: FitData, ln_period_center: float):
-    """Jitted, vmapped log-posterior of MCMC coordinates: (W, 6) → (W,) numpy."""
+    """Jitted, vmapped log-posterior of MCMC coordinates: (W, 6) → (W,) numpy. The period
+    prior: within a factor :data:`PERIOD_PRIOR_FACTOR` of the mode's, at most the span."""
     mag = jnp.asarray(soft_clip(data.mag, data.limit_mag), jnp.float32)
     err2 = jnp.asarray(data.mag_err**2, jnp.float32)
     # The device sees ln P relative to the model's reference period (to_device).
     ref = ln_period_ref(model)
     lnp = (
         ln_period_center - ref - math.log(PERIOD_PRIOR_FACTOR),
-        ln_period_center - ref + math.log(PERIOD_PRIOR_FACTOR),
+        min(ln_period_center + math.log(PERIOD_PRIOR_FACTOR), math.log(data.span_s)) - ref,
     )
     noise = tuple(math.log(b) for b in NOISE_BOUNDS_MAG)
     # bounds of coordinates 2… 5: ln P, φ (unbounded: periodic), Δm, ln σ
@@ -231,8 +232,10 @@ def run_emcee(
     settings: FitSettings,
     rng: np.random.Generator,
     log=None,
+    progress=None,
 ) -> dict:
-    """Sample around one mode until the kept chain is ≥ ``min_tau`` τ long (or ``max_steps``).
+    """Sample around one mode until the kept chain is ≥ ``min_tau`` τ long (or ``max_steps``);
+    ``log(str)`` gets a line per stage, ``progress(steps, max_steps, length_tau)`` each block.
 
     Two stages: an adaptation stage of ``adapt_steps`` steps from the Laplace
     ball with the Laplace proposal (:class:`IndependenceMove` + DE), discarded;
@@ -249,6 +252,7 @@ def run_emcee(
     import emcee
 
     log = log or (lambda msg: None)
+    progress = progress or (lambda steps, total, length: None)
     lp = log_prob_fn(model, data, float(mode.theta_lm[3]))
     p0, centre, cov = initial_ball(model, data, mode, settings.walkers, rng)
     # A broad mode's Laplace ball can reach past the prior's bounds: pull
@@ -294,11 +298,11 @@ def run_emcee(
             tau = emcee.autocorr.integrated_time(main.get_chain(), tol=0, quiet=True)
         tau = np.maximum(tau, 1.0)
         length = steps / np.max(tau) if np.all(np.isfinite(tau)) else 0.0
-        stuck = "" if np.all(np.isfinite(tau)) else " (a walker has not moved yet)"
-        log(f"  emcee: {steps} steps kept, τ = {np.round(tau, 1)}, length {length:.0f} τ{stuck}")
+        progress(steps, settings.max_steps, length)
         if length >= settings.min_tau:
             break
     chain, log_prob = main.get_chain(), main.get_log_prob()
+    log(f"  emcee: {steps} steps kept, τ = {np.round(tau, 1)}, length {length:.0f} τ")
     return {
         "chain": chain,
         "log_prob": log_prob,

@@ -1,27 +1,32 @@
-"""Period analysis: Lomb–Scargle, false-alarm probability and the P vs 2P decision.
+"""Period analysis: a spin period that holds on real data, or "no period".
 
-A rotating body usually shows two maxima per turn (its cross-section peaks
-twice), so the periodogram peaks at *half* the spin period. The decision
-between the periodogram period P_ls and 2 P_ls is made from the data:
+Steps (:func:`analyse_period`):
 
-* **odd harmonics** — a Fourier series with the fundamental 1/(2 P_ls) and
-  its harmonics against one with the harmonics of 1/P_ls only; the odd
-  harmonics are what distinguishes the two halves of a turn. Compared by BIC
-  (ΔBIC = BIC(P_ls) − BIC(2 P_ls); > 10 is strong evidence for 2 P_ls) and an
-  F-test p-value.
-* **halves** — the curve folded at 2 P_ls, binned in phase; the first half
-  against the second (χ² of the bin differences per degree of freedom and
-  its p-value).
-
-``alternative_period_s`` is the other candidate (2 P_ls when the
-decision is P_ls, P_ls when it is 2 P_ls). ``harmonic_factor`` is 2 when
-both say the halves differ (ΔBIC > 10 and the halves' p < 0.01), 1
-otherwise — then the object may still turn in 2 P_ls with two identical
-halves, which photometry cannot tell apart, and the summary says so.
+1. **Trend.** A slow polynomial in time (per sample group) is removed:
+   phase-angle and range changes over a pass are not rotation.
+2. **Periodogram.** Lomb–Scargle of the detrended magnitudes on a bounded
+   grid (:mod:`jaxlc.inference.periodogram`), shortest period 2.5 sampling
+   steps, longest half the span (at least two cycles seen).
+3. **Candidates.** A body with m maxima per turn puts the periodogram peak
+   at P/m; glinting bodies need m up to 4. The spin-period candidates are
+   1–4 × each of the strongest peaks (aliases included), each refined and
+   scored by a trend + Fourier-series fit (:mod:`jaxlc.inference.harmonics`)
+   with its number of harmonics chosen by BIC, the sample count replaced by
+   an effective one for red noise. A multiple m > 1 must beat the others by
+   ΔBIC > :data:`BIC_THRESHOLD`: two identical halves (a symmetric body)
+   cannot be told from one, and the simpler answer is kept — with the
+   double as ``alternative_period_s``.
+4. **Significance.** A period is reported only when the best candidate
+   beats the trend-only model by ΔBIC > :data:`BIC_THRESHOLD` *and* the
+   periodogram maximum is unlikely under block-shuffled residuals
+   (:func:`jaxlc.inference.periodogram.permutation_fap` <
+   :data:`FAP_THRESHOLD`). Otherwise ``period_s`` is NaN (``null`` in
+   JSON) and ``verdict`` says whether the curve varies at all (von Neumann
+   test of the residuals against white noise).
 
 Example:
     >>> result = analyse_period(t_s, mag)
-    >>> result.period_s, result.harmonic_factor
+    >>> result.verdict, result.period_s, result.alternative_period_s
 """
 
 from __future__ import annotations
@@ -32,124 +37,123 @@ import math
 import numpy as np
 
 from jaxlc.errors import JaxlcError
+from jaxlc.inference import periodogram
+from jaxlc.inference.harmonics import (
+    Candidate,
+    HarmonicModel,
+    bic,
+    effective_samples,
+    spin_candidates,
+    von_neumann_p,
+)
 
-#: ΔBIC above which the odd harmonics (a 2 P_ls period) count as detected.
+#: ΔBIC (effective samples) a period must gain over the trend, and a multiple over the peak.
 BIC_THRESHOLD = 10.0
-#: p-value below which the two halves of the 2 P_ls fold count as different.
-HALVES_P_THRESHOLD = 0.01
+#: Largest block-permutation false-alarm probability of a reported period.
+FAP_THRESHOLD = 0.01
+#: p-value of the von Neumann test below which a curve counts as variable.
+VARIABLE_P_THRESHOLD = 1e-3
+#: Residual scatter (mag) below which a curve is constant (noise-free or flat).
+CONSTANT_MAG = 1e-6
+#: Most samples analysed: longer curves are analysed on a random subset this large
+#: (sorted in time), which keeps time and memory bounded whatever the input.
+MAX_SAMPLES = 20_000
+NAN = float("nan")
+#: Periodogram peaks whose multiples are candidates.
+N_PEAKS = 5
 
 
 @dataclasses.dataclass(frozen=True)
 class PeriodResult:
-    """The outcome of :func:`analyse_period` (seconds, magnitudes; ``min_period_s`` and
-    ``max_period_s``: the range searched)."""
+    """The outcome of :func:`analyse_period` (seconds, magnitudes).
 
-    period_s: float
-    ls_period_s: float
-    ls_period_err_s: float
-    false_alarm_probability: float
-    harmonic_factor: int
-    ls_power: float
-    delta_bic: float
-    odd_harmonics_p: float
-    halves_chi2_per_dof: float
-    halves_p: float
-    amplitude_mag: float
+    ``period_s`` is NaN unless ``verdict == "periodic"``; ``best_period_s``
+    is the best candidate either way (for plots and fit seeds).
+    """
+
+    verdict: str  # "periodic", "aperiodic" (varies, no period) or "not variable"
+    variable: bool
+    decision: str
     n_samples: int
+    subsampled_from: int  # 0, or the number of usable samples when more than MAX_SAMPLES
     span_s: float
     min_period_s: float
     max_period_s: float
-    decision: str
-    alternative_period_s: float
-    frequency_hz: np.ndarray = dataclasses.field(repr=False)
-    power: np.ndarray = dataclasses.field(repr=False)
-    catalogue_period_s: float = float("nan")
+    n_groups: int
+    period_s: float = NAN
+    period_err_s: float = NAN
+    best_period_s: float = NAN
+    harmonic_factor: int = 1
+    n_harmonics: int = 0
+    alternative_period_s: float = NAN
+    ls_period_s: float = NAN
+    ls_power: float = NAN
+    false_alarm_probability: float = 1.0
+    false_alarm_probability_empirical: float = 1.0
+    false_alarm_probability_white: float = NAN
+    shuffles: int = 0
+    delta_bic: float = 0.0
+    variability_p: float = 1.0
+    effective_samples: float = NAN
+    red_noise_rho: float = NAN
+    cycles: float = NAN
+    amplitude_mag: float = 0.0
+    candidates: tuple = ()
+    frequency_hz: np.ndarray = dataclasses.field(repr=False, default=None)
+    power: np.ndarray = dataclasses.field(repr=False, default=None)
+    sample_t_s: np.ndarray = dataclasses.field(repr=False, default=None)
+    sample_mag: np.ndarray = dataclasses.field(repr=False, default=None)
+    model_mag: np.ndarray = dataclasses.field(repr=False, default=None)
+    trend_mag: np.ndarray = dataclasses.field(repr=False, default=None)
+    catalogue_period_s: float = NAN
+
+    @property
+    def periodic(self) -> bool:
+        """True when a period is reported."""
+        return self.verdict == "periodic"
 
     def summary(self) -> dict:
-        """JSON-ready dict (arrays left out)."""
+        """JSON-ready dict (arrays left out, NaN as None)."""
         d = {
-            k: v for k, v in dataclasses.asdict(self).items() if k not in ("frequency_hz", "power")
+            k: v
+            for k, v in dataclasses.asdict(self).items()
+            if k
+            not in ("frequency_hz", "power", "sample_t_s", "sample_mag", "model_mag", "trend_mag")
         }
+        d["candidates"] = [dict(c) for c in self.candidates]
         for k, v in d.items():
             if isinstance(v, float) and not math.isfinite(v):
                 d[k] = None
         return d
 
 
-def _detrend(t: np.ndarray, y: np.ndarray, degree: int) -> np.ndarray:
-    """Remove a slow polynomial trend in time (phase-angle and range changes)."""
-    if degree < 0:
-        return y - np.mean(y)
-    x = (t - t.mean()) / max(np.ptp(t), 1e-9)
-    coef = np.polynomial.polynomial.polyfit(x, y, degree)
-    return y - np.polynomial.polynomial.polyval(x, coef)
+def _clean(t_s, mag, mag_err):
+    t = np.asarray(t_s, dtype=np.float64)
+    y = np.asarray(mag, dtype=np.float64)
+    if t.shape != y.shape or t.ndim != 1:
+        raise JaxlcError(f"t_s and mag must be 1-D of one length, got {t.shape} and {y.shape}")
+    ok = np.isfinite(t) & np.isfinite(y)
+    dy = None
+    if mag_err is not None:
+        dy = np.asarray(mag_err, dtype=np.float64)
+        if dy.shape != t.shape:
+            raise JaxlcError(f"mag_err must have the shape of mag {t.shape}, got {dy.shape}")
+        ok &= np.isfinite(dy) & (dy > 0)
+    if np.count_nonzero(ok) < 10:
+        raise JaxlcError(
+            f"period analysis needs at least 10 finite samples, got {np.count_nonzero(ok)}"
+        )
+    order = np.argsort(t[ok], kind="stable")
+    t, y = t[ok][order], y[ok][order]
+    dy = None if dy is None else dy[ok][order]
+    steps = np.diff(t)
+    if not np.any(steps > 0):
+        raise JaxlcError("period analysis: all samples at one time")
+    return t, y, dy, float(np.median(steps[steps > 0]))
 
 
-def fourier_design(t: np.ndarray, frequency_hz: float, harmonics) -> np.ndarray:
-    """Design matrix (N, 1 + 2 K): a constant, cos and sin of each harmonic k·f."""
-    cols = [np.ones_like(t)]
-    for k in harmonics:
-        w = 2 * np.pi * k * frequency_hz * t
-        cols += [np.cos(w), np.sin(w)]
-    return np.stack(cols, axis=1)
-
-
-def _fit(a: np.ndarray, y: np.ndarray, w: np.ndarray) -> float:
-    """Weighted residual sum of squares of a linear least-squares fit."""
-    sw = np.sqrt(w)
-    coef, *_ = np.linalg.lstsq(a * sw[:, None], y * sw, rcond=None)
-    r = (y - a @ coef) * sw
-    return float(r @ r)
-
-
-def odd_harmonic_test(t, y, w, ls_period_s: float, n_harmonics: int = 4) -> tuple[float, float]:
-    """(ΔBIC, F-test p) for odd harmonics of 1/(2 P_ls) beyond the harmonics of 1/P_ls.
-
-    The null model has harmonics 1..K of 1/P_ls (i.e. 2, 4, .., 2K of
-    1/(2 P_ls)); the alternative adds the odd ones 1, 3, .., 2K − 1.
-    """
-    n = len(t)
-    f2 = 0.5 / ls_period_s
-    even = [2 * k for k in range(1, n_harmonics + 1)]
-    both = list(range(1, 2 * n_harmonics + 1))
-    rss0 = _fit(fourier_design(t, f2, even), y, w)
-    rss1 = _fit(fourier_design(t, f2, both), y, w)
-    k0, k1 = 1 + 2 * len(even), 1 + 2 * len(both)
-    rss1 = max(rss1, 1e-300)
-    # Gaussian likelihood with the noise level profiled out.
-    bic0 = n * math.log(rss0 / n) + k0 * math.log(n)
-    bic1 = n * math.log(rss1 / n) + k1 * math.log(n)
-    dof = n - k1
-    f_stat = ((rss0 - rss1) / (k1 - k0)) / (rss1 / dof) if dof > 0 else 0.0
-    from scipy import stats  # here, not at import: it costs ~0.4 s of `import jaxlc`
-
-    p = float(stats.f.sf(f_stat, k1 - k0, dof)) if dof > 0 else 1.0
-    return bic0 - bic1, p
-
-
-def halves_test(t, y, sigma, period_s: float, bins: int = 20) -> tuple[float, float]:
-    """(χ²/dof, p) of the difference between the two halves of a fold at ``period_s``."""
-    phase = np.mod(t / period_s, 1.0)
-    half = bins // 2
-    idx = np.minimum((phase * bins).astype(int), bins - 1)
-    mean = np.full(bins, np.nan)
-    err = np.full(bins, np.nan)
-    for b in range(bins):
-        m = idx == b
-        if np.count_nonzero(m) >= 2:
-            mean[b] = np.mean(y[m])
-            # scatter within the bin includes the curve's own slope: a conservative error
-            err[b] = max(np.std(y[m], ddof=1), np.median(sigma[m])) / math.sqrt(np.count_nonzero(m))
-    d = mean[:half] - mean[half:]
-    e2 = err[:half] ** 2 + err[half:] ** 2
-    ok = np.isfinite(d) & np.isfinite(e2) & (e2 > 0)
-    if np.count_nonzero(ok) < 3:
-        return float("nan"), float("nan")
-    chi2 = float(np.sum(d[ok] ** 2 / e2[ok]))
-    dof = int(np.count_nonzero(ok))
-    from scipy import stats
-
-    return chi2 / dof, float(stats.chi2.sf(chi2, dof))
+def _score(c: Candidate, n: int, n_eff: float) -> float:
+    return bic(c.rss, n, c.n_params, n_eff) + (BIC_THRESHOLD if c.multiple > 1 else 0.0)
 
 
 def analyse_period(
@@ -159,177 +163,233 @@ def analyse_period(
     min_period_s: float | None = None,
     max_period_s: float | None = None,
     detrend_degree: int = 2,
-    samples_per_peak: int = 20,
-    catalogue_period_s: float = float("nan"),
+    samples_per_peak: float = 10.0,
+    n_permutations: int = 300,
+    seed: int = 0,
+    catalogue_period_s: float = NAN,
 ) -> PeriodResult:
-    """Lomb–Scargle period with its false-alarm probability and the P vs 2P decision.
+    """Spin period with its evidence, or "no period" when the data do not support one.
 
     Args:
         t_s: (N,) sample times in seconds (visible samples only).
         mag: (N,) magnitudes.
-        mag_err: (N,) 1σ errors in mag, or None (then equal weights and the
-            noise is estimated from the fit residuals).
+        mag_err: (N,) 1σ errors in mag, or None (equal weights; the noise
+            level is profiled out either way, the errors only weight).
         min_period_s: shortest period searched (default: 2.5 × the median
-            sampling step, i.e. below Nyquist is never tried).
-        max_period_s: longest period searched (default: the span / 2, so at
-            least two cycles are seen).
-        detrend_degree: polynomial degree of a slow trend removed first
-            (−1: only the mean).
+            sampling step, never below Nyquist).
+        max_period_s: longest periodogram period (default and ceiling: half
+            the span, or of the longest run when the span is cut into runs).
+        detrend_degree: degree of the polynomial trend in time (0 or −1: the mean only).
         samples_per_peak: periodogram oversampling.
+        n_permutations: most block shuffles for the false-alarm probability (≥ 30;
+            fewer are run when the answer is clear 10× either side of the threshold).
+        seed: random seed of the shuffles.
         catalogue_period_s: a period from elsewhere (e.g. the MMT header),
             only carried into the result for comparison.
 
     Returns:
         A :class:`PeriodResult`.
     """
-    from astropy.timeseries import LombScargle
-
-    t = np.asarray(t_s, dtype=np.float64)
-    y = np.asarray(mag, dtype=np.float64)
-    if t.shape != y.shape or t.ndim != 1:
-        raise JaxlcError(f"t_s and mag must be 1-D of one length, got {t.shape} and {y.shape}")
-    ok = np.isfinite(t) & np.isfinite(y)
-    if mag_err is not None:
-        dy_all = np.asarray(mag_err, dtype=np.float64)
-        ok &= np.isfinite(dy_all) & (dy_all > 0)
-    t, y = t[ok], y[ok]
-    dy = None if mag_err is None else dy_all[ok]
-    if len(t) < 10:
-        raise JaxlcError(f"period analysis needs at least 10 finite samples, got {len(t)}")
-    order = np.argsort(t)
-    t, y = t[order], y[order]
-    dy = None if dy is None else dy[order]
-    span = float(t[-1] - t[0])
-    steps = np.diff(t)
-    step = float(np.median(steps[steps > 0])) if np.any(steps > 0) else 0.0
-    if span <= 0 or step <= 0:
-        raise JaxlcError("period analysis: all samples at one time")
-    p_min = min_period_s or 2.5 * step
-    p_max = max_period_s or span / 2
-    if not 0 < p_min < p_max:
+    t, y, dy, step = _clean(t_s, mag, mag_err)
+    n_all = len(t)
+    if n_all > MAX_SAMPLES:
+        pick = np.sort(np.random.default_rng(seed).choice(n_all, MAX_SAMPLES, replace=False))
+        t, y = t[pick], y[pick]
+        dy = None if dy is None else dy[pick]
+    # neighbours for the red-noise and variability statistics: the analysed samples' step
+    near_s = float(np.median(np.diff(t)[np.diff(t) > 0]))
+    if n_permutations < periodogram.MIN_PERMUTATIONS:
         raise JaxlcError(
-            f"period search range [{p_min:g}, {p_max:g}] s is empty: the light curve spans "
-            f"{span:g} s at {step:g} s steps; widen --min-period-s/--max-period-s"
+            f"n_permutations = {n_permutations}: at least {periodogram.MIN_PERMUTATIONS} "
+            "shuffles are needed for a false-alarm probability"
         )
-    y_d = _detrend(t, y, detrend_degree)
-    ls = LombScargle(t, y_d, dy)
-    f_min, f_max = 1.0 / p_max, 1.0 / p_min
-    freq, power = ls.autopower(
-        minimum_frequency=f_min, maximum_frequency=f_max, samples_per_peak=samples_per_peak
-    )
-    k = int(np.argmax(power))
-    # Zoom on the peak: a fine grid ±1 coarse step around it.
-    df = freq[1] - freq[0] if len(freq) > 1 else f_min
-    fine = np.linspace(max(freq[k] - df, f_min), min(freq[k] + df, f_max), 201)
-    p_fine = ls.power(fine)
-    f_best = float(fine[int(np.argmax(p_fine))])
-    p_best = float(np.max(p_fine))
-    fap = float(
-        ls.false_alarm_probability(
-            p_best, method="baluev", minimum_frequency=f_min, maximum_frequency=f_max
-        )
-    )
-    ls_period = 1.0 / f_best
-
+    if detrend_degree < -1:
+        raise JaxlcError(f"detrend_degree = {detrend_degree} must be ≥ −1 (−1 or 0: the mean)")
+    span = float(t[-1] - t[0])
+    p_min = float(min_period_s) if min_period_s else 2.5 * step
+    if max_period_s is not None and max_period_s <= 0:
+        raise JaxlcError(f"max_period_s = {max_period_s:g} must be > 0")
+    grid = periodogram.plan_grid(t, p_min, max_period_s, samples_per_peak)
+    p_max_spin = grid.span_s / 2  # at least two cycles of any spin period
+    p_max = min(p_max_spin, max_period_s or p_max_spin)
+    keep = np.concatenate(grid.groups)
+    groups = _reindex(grid.groups)
+    t, y = t[keep], y[keep]
+    dy = None if dy is None else dy[keep]
+    grid = dataclasses.replace(grid, groups=tuple(groups))
     w = np.ones_like(t) if dy is None else 1.0 / dy**2
-    sigma = np.full_like(t, np.nan) if dy is None else dy
-    if dy is None:
-        # noise from the residuals of a 4-harmonic fit at 2 P_ls
-        a = fourier_design(t, 0.5 * f_best, range(1, 9))
-        coef, *_ = np.linalg.lstsq(a, y_d, rcond=None)
-        sigma = np.full_like(t, float(np.std(y_d - a @ coef, ddof=a.shape[1])))
-    delta_bic, p_odd = odd_harmonic_test(t, y_d, w, ls_period)
-    chi2_dof, p_halves = halves_test(t, y_d, sigma, 2 * ls_period)
-    factor = 2 if (delta_bic > BIC_THRESHOLD and p_halves < HALVES_P_THRESHOLD) else 1
-    if factor == 2:
-        decision = (
-            f"spin period = 2 × periodogram period: the two halves of a turn differ "
-            f"(ΔBIC {delta_bic:.1f} > {BIC_THRESHOLD:g} for odd harmonics, halves p = "
-            f"{p_halves:.2g})"
-        )
-    else:
-        decision = (
-            "spin period = periodogram period; the halves of a 2P fold do not differ "
-            f"significantly (ΔBIC {delta_bic:.1f}, halves p = {p_halves:.2g}): a body with "
-            "two identical maxima per turn would spin in 2 × this period"
-        )
-    # 1σ period error from the peak width (Kovacs / VanderPlas): σ_f ≈ √(2/(N P)) / (π T A/σ)
-    a1 = fourier_design(t, f_best, [1])
-    coef, *_ = np.linalg.lstsq(a1, y_d, rcond=None)
-    amp = float(np.hypot(coef[1], coef[2]))
-    noise = float(np.median(sigma)) if np.all(np.isfinite(sigma)) else float(np.std(y_d))
-    sigma_f = math.sqrt(2.0 / len(t)) * noise / (math.pi * span * max(amp, 1e-12))
-    period_err = sigma_f / f_best**2
-    full = fourier_design(t, 0.5 * f_best, range(1, 9))
-    c_full, *_ = np.linalg.lstsq(full, y_d, rcond=None)
-    model = full @ c_full
-    return PeriodResult(
-        period_s=factor * ls_period,
-        ls_period_s=ls_period,
-        ls_period_err_s=float(period_err),
-        false_alarm_probability=fap,
-        harmonic_factor=factor,
-        ls_power=p_best,
-        delta_bic=float(delta_bic),
-        odd_harmonics_p=float(p_odd),
-        halves_chi2_per_dof=float(chi2_dof),
-        halves_p=float(p_halves),
-        amplitude_mag=float(np.ptp(model)),
+    model = HarmonicModel(t, y, w, groups, max(detrend_degree, 0))
+    r0 = model.residuals(0.0, 0)
+    scatter = float(np.std(r0 / np.sqrt(w)))
+    common = dict(
         n_samples=len(t),
+        subsampled_from=n_all if n_all > MAX_SAMPLES else 0,
         span_s=span,
         min_period_s=p_min,
         max_period_s=p_max,
-        decision=decision,
-        alternative_period_s=(2 if factor == 1 else 1) * ls_period,
-        frequency_hz=np.asarray(freq),
-        power=np.asarray(power),
+        n_groups=len(groups),
         catalogue_period_s=float(catalogue_period_s),
     )
+    if scatter < CONSTANT_MAG:
+        return _no_period(
+            "not variable",
+            f"constant: the residual scatter after the trend is {scatter:.1e} mag",
+            **common,
+        )
+    resid_mag = r0 / np.sqrt(w)
+    freq = grid.frequency_hz
+    pw = periodogram.power(t, resid_mag, dy, grid)
+    peaks = periodogram.local_peaks(pw, N_PEAKS, max(int(samples_per_peak), 1))
+    peaks_hz = freq[peaks]
+    cands = spin_candidates(model, peaks_hz, grid.df_hz, p_min, p_max, 0.5 / step)
+    if not cands:
+        return _no_period(
+            "not variable",
+            "no candidate period fits in the data (too few samples per group)",
+            **common,
+        )
+    raw_best = min(cands, key=lambda c: _score(c, model.n, model.n))
+    n_eff, rho = effective_samples(
+        model.residuals(raw_best.frequency_hz, raw_best.n_harmonics), t, groups, near_s
+    )
+    ranked = sorted(cands, key=lambda c: _score(c, model.n, n_eff))
+    best = ranked[0]
+    bic0 = bic(model.rss_trend, model.n, model.k_trend, n_eff)
+    delta_bic = bic0 - bic(best.rss, model.n, best.n_params, n_eff)
+    fap, fap_emp, n_shuffles = periodogram.permutation_fap(
+        t,
+        resid_mag,
+        dy,
+        grid,
+        n_permutations,
+        rng=np.random.default_rng(seed),
+        decide_at=FAP_THRESHOLD,
+    )
+    fap_white = periodogram.baluev_fap(t, resid_mag, dy, grid, float(np.max(pw)))
+    var_p = von_neumann_p(r0, t, groups, near_s)
+    periodic = delta_bic > BIC_THRESHOLD and fap < FAP_THRESHOLD
+    variable = periodic or var_p < VARIABLE_P_THRESHOLD
+    f_err = model.frequency_error(best.frequency_hz, best.n_harmonics, n_eff)
+    alternative = next(
+        (c.period_s for c in ranked if abs(c.period_s / best.period_s - 1) > 0.01), float("nan")
+    )
+    fitted = model.fitted(best.frequency_hz, best.n_harmonics)
+    decision = _decision(best, periodic, variable, delta_bic, fap, var_p, alternative)
+    s_best = _score(best, model.n, n_eff)
+    return PeriodResult(
+        verdict="periodic" if periodic else ("aperiodic" if variable else "not variable"),
+        variable=bool(variable),
+        period_s=best.period_s if periodic else float("nan"),
+        period_err_s=f_err / best.frequency_hz**2 if periodic else float("nan"),
+        best_period_s=best.period_s,
+        harmonic_factor=best.multiple,
+        n_harmonics=best.n_harmonics,
+        alternative_period_s=alternative,
+        ls_period_s=float(1.0 / freq[peaks[0]]),
+        ls_power=float(pw[peaks[0]]),
+        false_alarm_probability=fap,
+        false_alarm_probability_empirical=fap_emp,
+        false_alarm_probability_white=fap_white,
+        shuffles=n_shuffles,
+        delta_bic=float(delta_bic),
+        variability_p=var_p,
+        effective_samples=n_eff,
+        red_noise_rho=rho,
+        cycles=float(grid.span_s / best.period_s),
+        amplitude_mag=float(np.ptp(fitted - (y - resid_mag))),
+        decision=decision,
+        candidates=tuple(
+            {
+                "period_s": c.period_s,
+                "multiple": c.multiple,
+                "peak_period_s": c.peak_period_s,
+                "n_harmonics": c.n_harmonics,
+                "delta_score": _score(c, model.n, n_eff) - s_best,
+            }
+            for c in ranked[:8]
+        ),
+        frequency_hz=freq,
+        power=pw,
+        sample_t_s=t,
+        sample_mag=y,
+        model_mag=fitted,
+        trend_mag=model.fitted(0.0, 0),
+        **common,
+    )
+
+
+def _reindex(groups) -> list[np.ndarray]:
+    """The groups' indices after the dropped samples are removed (kept in order)."""
+    out, pos = [], 0
+    for g in groups:
+        out.append(np.arange(pos, pos + len(g)))
+        pos += len(g)
+    return out
+
+
+def _no_period(verdict: str, why: str, **common) -> PeriodResult:
+    return PeriodResult(
+        verdict=verdict,
+        variable=verdict != "not variable",
+        decision=f"no period: {why}",
+        frequency_hz=np.zeros(0),
+        power=np.zeros(0),
+        **common,
+    )
+
+
+def _decision(best, periodic, variable, delta_bic, fap, var_p, alternative) -> str:
+    evidence = f"ΔBIC {delta_bic:.1f} over the trend, block-shuffle FAP {format_p(fap)}"
+    if periodic:
+        how = (
+            "the periodogram peak"
+            if best.multiple == 1
+            else f"{best.multiple} × the periodogram peak {best.peak_period_s:.5g} s"
+        )
+        text = (
+            f"spin period {best.period_s:.6g} s = {how} ({evidence}; {best.n_harmonics} "
+            f"harmonic{'s' if best.n_harmonics > 1 else ''})"
+        )
+        if math.isfinite(alternative):
+            text += f"; next best {alternative:.5g} s"
+        if best.multiple == 1:
+            text += (
+                f" — a body with two identical maxima per turn would spin in "
+                f"{2 * best.period_s:.5g} s"
+            )
+        return text
+    if variable:
+        return (
+            f"no period: the curve varies (von Neumann p = {format_p(var_p)}) but no period "
+            f"is significant (best {best.period_s:.5g} s: {evidence}; needs ΔBIC > "
+            f"{BIC_THRESHOLD:g} and FAP < {FAP_THRESHOLD:g})"
+        )
+    return (
+        f"no period: not variable beyond noise and trend (von Neumann p = {format_p(var_p)}; "
+        f"best {best.period_s:.5g} s: {evidence})"
+    )
+
+
+def period_agrees(found_s: float, true_s: float, span_s: float) -> bool:
+    """Whether a period matches a reference spin period: it, or exactly half or double
+    it, within max(1 %, ¼ of the periodogram resolution P²/T) of the reference P (T:
+    the span, s). NaN never agrees."""
+    tol = max(0.01 * true_s, 0.25 * true_s**2 / span_s)
+    return any(abs(k * found_s - true_s) <= tol for k in (0.5, 1.0, 2.0))
+
+
+def format_p(p: float) -> str:
+    """A probability for people: '< 1e-300' instead of 0, two significant digits."""
+    if not math.isfinite(p):
+        return "—"
+    if p < 1e-300:
+        return "< 1e-300"
+    return f"{p:.2g}"
 
 
 def fold_phase(t_s, period_s: float) -> np.ndarray:
     """Rotational phase in [0, 1) of each sample for a period (s)."""
     return np.mod(np.asarray(t_s, dtype=np.float64) / period_s, 1.0)
-
-
-def candidate_periods(
-    t_s,
-    mag,
-    min_period_s: float,
-    max_period_s: float,
-    n_terms: int = 6,
-    n_peaks: int = 3,
-    samples_per_peak: int = 10,
-) -> list[float]:
-    """The ``n_peaks`` best distinct periods of a multi-harmonic periodogram.
-
-    A light curve with sharp glints puts little power in any single sinusoid
-    (the one-term periodogram's peak can then be an alias or noise); an
-    ``n_terms``-harmonic Lomb–Scargle model (astropy, ``nterms``) follows the
-    whole folded shape. Its peaks at P and at multiples of P are equally good
-    (a series at 2P contains the harmonics of P): seed both.
-
-    Args:
-        t_s, mag: (N,) sample times (s) and magnitudes.
-        min_period_s, max_period_s: search range.
-
-    Returns:
-        Periods (s), best first, each > 1 % from the others.
-    """
-    from astropy.timeseries import LombScargle
-
-    t = np.asarray(t_s, np.float64)
-    y = _detrend(t, np.asarray(mag, np.float64), 2)
-    ls = LombScargle(t, y, nterms=n_terms)
-    freq, power = ls.autopower(
-        minimum_frequency=1.0 / max_period_s,
-        maximum_frequency=1.0 / min_period_s,
-        samples_per_peak=samples_per_peak,
-    )
-    # local maxima, strongest first
-    is_peak = np.r_[False, (power[1:-1] >= power[:-2]) & (power[1:-1] >= power[2:]), False]
-    order = np.flatnonzero(is_peak)[np.argsort(-power[is_peak])]
-    return distinct_periods(1.0 / freq[order], limit=n_peaks)
 
 
 def distinct_periods(periods, tol: float = 0.01, limit: int | None = None) -> list[float]:
