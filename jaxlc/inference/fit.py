@@ -72,12 +72,12 @@ def fit_spin(
         seeds = [settings.period_s]
         period_info = {"given_period_s": settings.period_s}
     else:
-        pr = analyse_period(
-            data.t_s,
-            data.mag,
-            min_period_s=settings.min_period_s,
-            max_period_s=settings.max_period_s,
-        )
+        # The range bounds the *spin*: its periodogram peak may be up to 4× shorter.
+        lo = settings.min_period_s
+        if lo is not None:
+            steps = np.diff(np.sort(data.t_s))
+            lo = max(lo / 4, 2.5 * float(np.median(steps[steps > 0])))
+        pr = analyse_period(data.t_s, data.mag, min_period_s=lo, max_period_s=settings.max_period_s)
         if not pr.variable:
             raise JaxlcError(
                 f"spin fit: the light curve does not vary beyond its noise and trend "
@@ -86,7 +86,15 @@ def fit_spin(
         # The candidates the period analysis scored (multiples of its peaks), best first,
         # and the double of the best (two identical halves look like one).
         ranked = [c["period_s"] for c in pr.candidates]
-        seeds = _distinct([*ranked[:6], 2 * pr.best_period_s], pr.min_period_s, pr.span_s)
+        hi = min(settings.max_period_s or pr.span_s, pr.span_s)
+        seeds = _distinct(
+            [*ranked[:6], 2 * pr.best_period_s], settings.min_period_s or pr.min_period_s, hi
+        )
+        if not seeds:
+            raise JaxlcError(
+                f"spin fit: no candidate period within [{settings.min_period_s}, {hi:.4g}] s "
+                f"(period analysis: {pr.decision}); widen --min-period-s/--max-period-s"
+            )
         period_info = pr.summary()
         log(
             f"period analysis: {pr.verdict}, best {pr.best_period_s:.4g} s "
@@ -139,16 +147,27 @@ def fit_spin(
     for n, i in enumerate(sampled):
         stage = f"emcee mode {n + 1}/{len(sampled)} (P {modes[i].period_s:.4g} s)"
         log(f"emcee around mode {i} (Δχ² = {modes[i].chi2 - best_chi2:.1f})")
-        runs[i] = mcmc.run_emcee(
-            model,
-            data,
-            modes[i],
-            settings,
-            rng,
-            log=log,
-            progress=lambda steps, total, _length, s=stage: progress(s, steps, total),
-        )
+        try:
+            runs[i] = mcmc.run_emcee(
+                model,
+                data,
+                modes[i],
+                settings,
+                rng,
+                log=log,
+                progress=lambda steps, total, _length, s=stage: progress(s, steps, total),
+            )
+        except mcmc.OutsidePriorError as exc:  # a mode at a bound is not a posterior mode
+            log(f"mode {i} left out: {exc}")
+            continue
         tables.append(mcmc.samples_table(runs[i]["chain"], runs[i]["log_prob"], i))
+    sampled = [i for i in sampled if i in runs]
+    if not sampled:
+        raise JaxlcError(
+            "spin fit: every mode within Δχ² < "
+            f"{settings.mode_delta_chi2:g} lies outside the prior (noise or Δm at a bound); "
+            "check the light curve's units (magnitudes) or give --period-s"
+        )
     weights = mcmc.mode_weights([runs[i]["log_evidence"] for i in sampled])
     for i, w, table in zip(sampled, weights, tables, strict=True):
         runs[i]["weight"] = float(w)

@@ -226,14 +226,18 @@ class Candidate:
 
 
 def spin_candidates(
-    model: HarmonicModel, peaks_hz, df_hz: float, p_min: float, p_max: float, nyquist_hz: float
+    model: HarmonicModel, peaks_hz, df_hz: float, p_min: float, p_max: float
 ) -> list[Candidate]:
     """Every multiple (:data:`MULTIPLES`) of every peak frequency whose period is in
     [p_min, p_max] s, refined within ±2 grid steps ``df_hz``, with its number of
     harmonics chosen by BIC (all samples counted; the caller rescores with N_eff).
 
-    Harmonics reach at most :data:`MAX_PEAK_HARMONICS` of the peak, the Nyquist
-    frequency ``nyquist_hz`` and what each group's samples can carry.
+    Harmonics reach at most :data:`MAX_PEAK_HARMONICS` of the peak and what each
+    group's samples can carry — above the Nyquist frequency too: deep, narrow
+    features (an edge-on CubeSat) put power in high harmonics, which even
+    sampling folds back into the band, and a series that cannot hold them
+    prefers a wrong period (an aliased 8th harmonic of a 6.77 s spin seen at
+    1 Hz looked like a 5.49 s period).
     """
     out = []
     h_cap = model.max_harmonics()
@@ -242,7 +246,7 @@ def spin_candidates(
             f_c = f_k / m
             if not p_min <= 1.0 / f_c <= p_max:
                 continue
-            h_max = min(MAX_PEAK_HARMONICS, int(nyquist_hz / f_k), h_cap // m, MAX_HARMONICS // m)
+            h_max = min(MAX_PEAK_HARMONICS, h_cap // m, MAX_HARMONICS // m)
             if h_max < 1:
                 continue
             f_c = model.refine(f_c, m * min(h_max, 3), 2 * df_hz / m)

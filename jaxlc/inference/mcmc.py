@@ -86,6 +86,10 @@ class FitSettings:
             raise JaxlcError(f"adapt_steps = {self.adapt_steps} must be ≥ 10")
 
 
+class OutsidePriorError(JaxlcError):
+    """A mode whose Laplace ball cannot be pulled inside the prior (not sampled)."""
+
+
 @filter_jit
 def _log_prob(model: SpinModel, mag, err2, bounds, thetas):
     """(W,) log-posterior of (W, 6) MCMC coordinates (compiled once per model layout)."""
@@ -263,9 +267,9 @@ def run_emcee(
             break
         p0[bad] = centre + 0.5 * (p0[bad] - centre)
     else:
-        raise JaxlcError(
+        raise OutsidePriorError(
             f"emcee: the mode at P = {mode.period_s:.6g} s has zero prior density "
-            "(noise or Δm at a bound); report this with the light curve"
+            "(noise or Δm at a bound)"
         )
     seed = int(rng.integers(2**31))
 

@@ -140,8 +140,11 @@ def _clean(t_s, mag, mag_err):
             raise JaxlcError(f"mag_err must have the shape of mag {t.shape}, got {dy.shape}")
         ok &= np.isfinite(dy) & (dy > 0)
     if np.count_nonzero(ok) < 10:
+        bad_err = "" if dy is None else f" ({int(np.sum(~(np.isfinite(dy) & (dy > 0))))} with "
+        bad_err += "" if dy is None else "a non-finite or non-positive mag_err)"
         raise JaxlcError(
             f"period analysis needs at least 10 finite samples, got {np.count_nonzero(ok)}"
+            + bad_err
         )
     order = np.argsort(t[ok], kind="stable")
     t, y = t[ok][order], y[ok][order]
@@ -241,11 +244,14 @@ def analyse_period(
     pw = periodogram.power(t, resid_mag, dy, grid)
     peaks = periodogram.local_peaks(pw, N_PEAKS, max(int(samples_per_peak), 1))
     peaks_hz = freq[peaks]
-    cands = spin_candidates(model, peaks_hz, grid.df_hz, p_min, p_max, 0.5 / step)
+    cands = spin_candidates(model, peaks_hz, grid.df_hz, p_min, p_max)
     if not cands:
+        var_p = von_neumann_p(r0, t, groups, near_s)
         return _no_period(
-            "not variable",
-            "no candidate period fits in the data (too few samples per group)",
+            "aperiodic" if var_p < VARIABLE_P_THRESHOLD else "not variable",
+            "too few samples for any candidate period (a third of each run's samples "
+            "must outnumber the series' parameters)",
+            variability_p=var_p,
             **common,
         )
     raw_best = min(cands, key=lambda c: _score(c, model.n, model.n))
