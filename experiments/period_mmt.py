@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from jaxlc.inference.harmonics import median_step_s
 from jaxlc.inference.period import analyse_period, period_agrees
 from jaxlc.io.observations import observed_samples, read_observations
 from jaxlc.io.tables import write_table
@@ -46,7 +47,7 @@ def plain_lomb_scargle(t, y) -> tuple[float, float]:
     """(peak period, Baluev FAP) of astropy's periodogram over 2.5 steps … span/2."""
     from astropy.timeseries import LombScargle
 
-    step = float(np.median(np.diff(t)[np.diff(t) > 0]))
+    step = median_step_s(t)
     ls = LombScargle(t, y - np.mean(y))
     f_lo, f_hi = 2.0 / np.ptp(t), 1.0 / (2.5 * step)
     f, p = ls.autopower(minimum_frequency=f_lo, maximum_frequency=f_hi, samples_per_peak=10)

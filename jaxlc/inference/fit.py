@@ -28,6 +28,7 @@ import pandas as pd
 from jaxlc.errors import JaxlcError
 from jaxlc.inference import mcmc
 from jaxlc.inference.data import fit_data, soft_clip
+from jaxlc.inference.harmonics import median_step_s
 from jaxlc.inference.mcmc import FitSettings
 from jaxlc.inference.model import MC_NAMES, N_LM, spin_model, to_device
 from jaxlc.inference.period import analyse_period, distinct_periods
@@ -75,8 +76,7 @@ def fit_spin(
         # The range bounds the *spin*: its periodogram peak may be up to 4× shorter.
         lo = settings.min_period_s
         if lo is not None:
-            steps = np.diff(np.sort(data.t_s))
-            lo = max(lo / 4, 2.5 * float(np.median(steps[steps > 0])))
+            lo = max(lo / 4, 2.5 * median_step_s(np.sort(data.t_s)))
         pr = analyse_period(data.t_s, data.mag, min_period_s=lo, max_period_s=settings.max_period_s)
         if not pr.variable:
             raise JaxlcError(

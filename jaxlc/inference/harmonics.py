@@ -157,32 +157,41 @@ def bic(rss: float, n: int, n_params: int, n_eff: float) -> float:
     return n_eff * math.log(max(rss, 1e-300) / n) + n_params * math.log(n_eff)
 
 
-def effective_samples(resid, t_s, groups, step_s: float) -> tuple[float, float]:
-    """(N_eff, ρ): the lag-1 autocorrelation ρ of residuals of neighbouring samples (≤ 3
-    median steps apart, same group) and N (1 − ρ)/(1 + ρ), clipped to [N/50, N].
+def median_step_s(t_s) -> float:
+    """Median positive spacing of sorted sample times (s); 0 when all are equal."""
+    steps = np.diff(np.asarray(t_s, np.float64))
+    return float(np.median(steps[steps > 0])) if np.any(steps > 0) else 0.0
+
+
+def neighbour_pairs(resid, t_s, groups, step_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """(earlier, later) residuals of neighbouring samples: ≤ 3 ``step_s`` apart, same group.
 
     Args:
         resid: (N,) residuals, group after group (as :meth:`HarmonicModel.residuals`).
         t_s: (N,) sorted times (s); groups: the model's index arrays.
     """
-    num = den = 0.0
-    pos = 0
-    n = 0
+    first, second, pos = [], [], 0
     for g in groups:
         r = resid[pos : pos + len(g)]
-        t = np.asarray(t_s)[g]
         pos += len(g)
-        n += len(g)
-        near = np.diff(t) <= 3 * step_s
-        num += float(np.sum(r[:-1][near] * r[1:][near]))
-        den += float(np.sum(r * r))
-    rho = num / den if den > 0 else 0.0
-    rho = min(max(rho, 0.0), 0.999)
+        near = np.diff(np.asarray(t_s)[g]) <= 3 * step_s
+        first.append(r[:-1][near])
+        second.append(r[1:][near])
+    return np.concatenate(first), np.concatenate(second)
+
+
+def effective_samples(resid, t_s, groups, step_s: float) -> tuple[float, float]:
+    """(N_eff, ρ): the lag-1 autocorrelation ρ of neighbouring residuals
+    (:func:`neighbour_pairs`) and N (1 − ρ)/(1 + ρ), clipped to [N/50, N]."""
+    a, b = neighbour_pairs(resid, t_s, groups, step_s)
+    den = float(resid @ resid)
+    rho = min(max(float(a @ b) / den if den > 0 else 0.0, 0.0), 0.999)
+    n = len(resid)
     n_eff = n * (1 - rho) / (1 + rho)
     return float(min(max(n_eff, n / 50, 3.0), n)), float(rho)
 
 
-def von_neumann_p(resid: np.ndarray, t_s: np.ndarray, groups, step_s: float) -> float:
+def von_neumann_p(resid, t_s, groups, step_s: float) -> float:
     """p-value of white noise against slow variation (von Neumann ratio of neighbours).
 
     Under white noise the mean squared successive difference is twice the
@@ -191,20 +200,12 @@ def von_neumann_p(resid: np.ndarray, t_s: np.ndarray, groups, step_s: float) -> 
     """
     from scipy import stats
 
-    pos = 0
-    d2, m = 0.0, 0
-    for g in groups:
-        r = resid[pos : pos + len(g)]
-        t = np.asarray(t_s)[g]
-        pos += len(g)
-        near = np.diff(t) <= 3 * step_s
-        d = np.diff(r)[near]
-        d2 += float(d @ d)
-        m += int(near.sum())
+    a, b = neighbour_pairs(resid, t_s, groups, step_s)
+    m = len(a)
     var = float(np.mean(resid**2))
     if m < 5 or var <= 0:
         return 1.0
-    eta = d2 / m / var
+    eta = float((b - a) @ (b - a)) / m / var
     z = (2.0 - eta) / math.sqrt(4.0 / m)
     return float(stats.norm.sf(z))
 

@@ -43,6 +43,7 @@ from jaxlc.inference.harmonics import (
     HarmonicModel,
     bic,
     effective_samples,
+    median_step_s,
     spin_candidates,
     von_neumann_p,
 )
@@ -149,10 +150,10 @@ def _clean(t_s, mag, mag_err):
     order = np.argsort(t[ok], kind="stable")
     t, y = t[ok][order], y[ok][order]
     dy = None if dy is None else dy[ok][order]
-    steps = np.diff(t)
-    if not np.any(steps > 0):
+    step = median_step_s(t)
+    if step <= 0:
         raise JaxlcError("period analysis: all samples at one time")
-    return t, y, dy, float(np.median(steps[steps > 0]))
+    return t, y, dy, step
 
 
 def _score(c: Candidate, n: int, n_eff: float) -> float:
@@ -200,7 +201,7 @@ def analyse_period(
         t, y = t[pick], y[pick]
         dy = None if dy is None else dy[pick]
     # neighbours for the red-noise and variability statistics: the analysed samples' step
-    near_s = float(np.median(np.diff(t)[np.diff(t) > 0]))
+    near_s = median_step_s(t)
     if n_permutations < periodogram.MIN_PERMUTATIONS:
         raise JaxlcError(
             f"n_permutations = {n_permutations}: at least {periodogram.MIN_PERMUTATIONS} "
@@ -280,6 +281,7 @@ def analyse_period(
         (c.period_s for c in ranked if abs(c.period_s / best.period_s - 1) > 0.01), float("nan")
     )
     fitted = model.fitted(best.frequency_hz, best.n_harmonics)
+    trend = model.fitted(0.0, 0)
     decision = _decision(best, periodic, variable, delta_bic, fap, var_p, alternative)
     s_best = _score(best, model.n, n_eff)
     return PeriodResult(
@@ -302,7 +304,7 @@ def analyse_period(
         effective_samples=n_eff,
         red_noise_rho=rho,
         cycles=float(grid.span_s / best.period_s),
-        amplitude_mag=float(np.ptp(fitted - (y - resid_mag))),
+        amplitude_mag=float(np.ptp(fitted - trend)),
         decision=decision,
         candidates=tuple(
             {
@@ -319,7 +321,7 @@ def analyse_period(
         sample_t_s=t,
         sample_mag=y,
         model_mag=fitted,
-        trend_mag=model.fitted(0.0, 0),
+        trend_mag=trend,
         **common,
     )
 

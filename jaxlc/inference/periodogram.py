@@ -65,6 +65,11 @@ class Grid:
         return self.f0_hz + self.df_hz * np.arange(self.n)
 
     @property
+    def f_max_hz(self) -> float:
+        """The highest frequency of the grid (Hz)."""
+        return self.f0_hz + self.df_hz * (self.n - 1)
+
+    @property
     def coherent(self) -> bool:
         """True when one group holds every sample (phases kept across the whole span)."""
         return len(self.groups) == 1
@@ -151,9 +156,8 @@ def coarse(grid: Grid) -> Grid:
     """The grid at :data:`FAP_SAMPLES_PER_PEAK` points per peak width, or ``grid`` itself
     when it is already that coarse (never coarser: an unresolved peak would be missed
     in the data and found in the broad peaks of the shuffles)."""
-    f_hi = grid.f0_hz + grid.df_hz * (grid.n - 1)
     df = max(1.0 / (FAP_SAMPLES_PER_PEAK * grid.span_s), grid.df_hz)
-    n = max(int((f_hi - grid.f0_hz) / df) + 1, 2)
+    n = max(int((grid.f_max_hz - grid.f0_hz) / df) + 1, 2)
     return dataclasses.replace(grid, df_hz=df, n=n)
 
 
@@ -239,7 +243,6 @@ def permutation_fap(
     observed = float(np.max(power(t_s, resid, dy, g)))
     null: list[float] = []
     idx = np.arange(len(resid))
-    fap = 1.0
     while len(null) < n_permutations:
         perm = block_shuffle(idx, grid.groups, blocks, rng)
         null.append(float(np.max(power(t_s, resid[perm], None if dy is None else dy[perm], g))))
@@ -268,9 +271,8 @@ def baluev_fap(t_s, resid, dy, grid: Grid, z: float) -> float:
         return float("nan")
     from astropy.timeseries import LombScargle
 
-    f_hi = grid.f0_hz + grid.df_hz * (grid.n - 1)
     return float(
         LombScargle(t_s, resid, dy).false_alarm_probability(
-            z, method="baluev", minimum_frequency=grid.f0_hz, maximum_frequency=f_hi
+            z, method="baluev", minimum_frequency=grid.f0_hz, maximum_frequency=grid.f_max_hz
         )
     )
