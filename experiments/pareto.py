@@ -182,8 +182,8 @@ def blur_rows(repeats_s, quick):
         scene = jaxlc.load_scene(name)
         dense = jaxlc.render(scene, geo_table, options=RenderOptions(subsamples=256))
         keep = np.isfinite(dense["mag"]) & (dense["mag"] < np.nanmedian(dense["mag"]) + 5)
-        auto_plan = jaxlc.render(scene, geo_table).attrs["plan"]
-        n_auto = int(auto_plan.split("|")[3].split()[0])
+        # the per-curve rule's count (adaptive blur starts from it: blur_adaptive.py)
+        n_auto = jaxlc.prepare(scene, geo_table).plan.subsamples
         base = curve_time(jaxlc.prepare(scene, geo_table, RenderOptions(blur="off")), repeats_s)
         for n in sorted({1, 2, 4, 8, 16, 32, 64, n_auto}):
             lc = jaxlc.render(scene, geo_table, options=RenderOptions(subsamples=n))
@@ -195,7 +195,7 @@ def blur_rows(repeats_s, quick):
                 dict(
                     knob="blur",
                     scene=sid,
-                    setting=f"{n} sub-exposures" + (" (auto)" if n == n_auto else ""),
+                    setting=f"{n} sub-exposures" + (" (rule)" if n == n_auto else ""),
                     value=n,
                     seconds=sec,
                     relative_cost=sec / base,

@@ -106,8 +106,9 @@ def _clean_fit_and_model(scene, geo):
     from jaxlc.inference.model import spin_model, to_device, truth_theta
 
     data = fit_data(jaxlc.render(scene, geo), geo)
-    model = spin_model(scene, data, scene.attitude.period_s)
-    m = np.asarray(model.magnitudes(to_device(model, truth_theta(scene, data))))
+    truth = truth_theta(scene, data)  # sub-exposures chosen at the truth, as render does
+    model = spin_model(scene, data, scene.attitude.period_s, theta=truth)
+    m = np.asarray(model.magnitudes(to_device(model, truth)))
     return data, m
 
 

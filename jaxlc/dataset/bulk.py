@@ -30,7 +30,7 @@ import numpy as np
 from jaxlc.body.brdf import BRDFS
 from jaxlc.body.facet_model import pad_models
 from jaxlc.rendering.kernel import KernelInputs, SpaceObject, exposure_intensity
-from jaxlc.rendering.prepare import Prepared
+from jaxlc.rendering.prepare import Prepared, adapt, probe_inputs
 from jaxlc.xla import jit
 
 #: Instants per block of the facet sum for shadowed classes: the shadow lookup runs
@@ -76,9 +76,10 @@ def batch_kernel(sequential: bool):
     return jit(f, static_argnums=(4, 5))
 
 
-def _block(inputs: KernelInputs, start: int, size: int) -> KernelInputs:
-    """Instants ``start … start + size`` of a curve's inputs, with output rows 0 … size − 1
-    (padding past the end carries zero weight)."""
+def _block(inputs: KernelInputs, start: int, size: int, relative: bool = False) -> KernelInputs:
+    """Instants ``start … start + size`` of a curve's inputs (padding past the end carries
+    zero weight). Output rows are the curve's (0 … size − 1 must hold them), or with
+    ``relative`` the block's own instants (one output per instant: a probe)."""
     stop = min(start + size, len(inputs.weight))
     pad = size - (stop - start)
 
@@ -95,7 +96,7 @@ def _block(inputs: KernelInputs, start: int, size: int) -> KernelInputs:
         sun_dir=block.sun_dir,
         obs_dir=block.obs_dir,
         weight=weight,
-        row=block.row,
+        row=np.arange(size, dtype=np.int32) if relative else block.row,
         n_rows=size,
         subsamples=None,
     )
@@ -105,8 +106,44 @@ def _stack(trees):
     return jax.tree_util.tree_map(lambda *xs: np.stack([np.asarray(x) for x in xs]), *trees)
 
 
+def _evaluate(config, cls, objects, inputs, relative: bool) -> list[np.ndarray]:
+    """Each curve's inputs cut into blocks of ``config.samples`` instants, all blocks
+    evaluated ``config.batch_size`` at a time: per curve, the (samples,) sums of its
+    output rows (``relative``: the (M,) values of its M instants)."""
+    t_len, size = config.samples, config.batch_size
+    n_inst = [len(i.weight) for i in inputs]
+    blocks = [(j, k) for j, n in enumerate(n_inst) for k in range(0, n, t_len)]
+    out = [np.zeros(n if relative else t_len) for n in n_inst]
+    if not blocks:
+        return out
+    flags = class_flags(cls)
+    shadow, free = objects[0].shadow, objects[0].free
+    kernel = batch_kernel(shadow is not None)
+    chunk = None if shadow is None else SHADOW_CHUNK
+    for b0 in range(0, len(blocks), size):
+        batch = blocks[b0 : b0 + size]
+        real = len(batch)
+        batch = batch + [batch[0]] * (size - real)  # pad: one shape per class
+        objs = [objects[j] for j, _ in batch]
+        models = _stack(pad_models([o.model for o in objs], flags))
+        attitudes = _stack([o.attitude for o in objs])
+        stacked = _stack([_block(inputs[j], k, t_len, relative) for j, k in batch])
+        got = np.asarray(kernel(models, attitudes, shadow, stacked, free, chunk), np.float64)
+        for r, (j, k) in enumerate(batch[:real]):  # a curve's blocks in order: fixed sums
+            if relative:
+                n = min(t_len, n_inst[j] - k)
+                out[j][k : k + n] = got[r, :n]
+            else:
+                out[j] += got[r]
+    return out
+
+
 def render_class(config, cls, prepared: list[Prepared]) -> np.ndarray:
     """Render C prepared curves of one class: (C, T) mean I/E over each exposure.
+
+    Curves whose plan asks for adaptive sub-exposures are refined together
+    (:func:`jaxlc.rendering.prepare.adapt`, each level's new instants of all
+    curves in batches); the others are evaluated on their fixed instants.
 
     Args:
         config: the dataset config (samples, batch size).
@@ -116,28 +153,23 @@ def render_class(config, cls, prepared: list[Prepared]) -> np.ndarray:
     Returns:
         (C, T) float64 I/E (m² sr⁻¹) of every rendered row; NaN on rows not rendered.
     """
-    t_len, size = config.samples, config.batch_size
-    blocks = [(j, k) for j, p in enumerate(prepared) for k in range(0, len(p.exposures.t_s), t_len)]
-    sums = np.zeros((len(prepared), t_len))
-    if blocks:
-        flags = class_flags(cls)
-        shadow = prepared[0].object.shadow
-        free = prepared[0].object.free
-        kernel = batch_kernel(shadow is not None)
-        chunk = None if shadow is None else SHADOW_CHUNK
-        for b0 in range(0, len(blocks), size):
-            batch = blocks[b0 : b0 + size]
-            real = len(batch)
-            batch = batch + [batch[0]] * (size - real)  # pad: one shape per class
-            objs = [prepared[j].object for j, _ in batch]
-            models = _stack(pad_models([o.model for o in objs], flags))
-            attitudes = _stack([o.attitude for o in objs])
-            inputs = _stack([_block(prepared[j].inputs, k, t_len) for j, k in batch])
-            out = np.asarray(kernel(models, attitudes, shadow, inputs, free, chunk), np.float64)
-            for r, (j, _) in enumerate(batch[:real]):  # a curve's blocks in order: fixed sums
-                rows = prepared[j].exposures.rows
-                sums[j, rows] += out[r, : len(rows)]
-    out = np.full((len(prepared), t_len), np.nan)
+
+    def probes(requests):
+        objs = [p.object for p, _ in requests]
+        ins = [probe_inputs(p, probe, pad=False) for p, probe in requests]
+        got = _evaluate(config, cls, objs, ins, relative=True)
+        return [g[: len(probe.t_s)] for g, (_, probe) in zip(got, requests, strict=True)]
+
+    prepared = adapt(prepared, probes)
+    fixed = [j for j, p in enumerate(prepared) if p.refinement is None]
+    sums = _evaluate(
+        config, cls, [prepared[j].object for j in fixed], [prepared[j].inputs for j in fixed], False
+    )
+    out = np.full((len(prepared), config.samples), np.nan)
+    for j, s in zip(fixed, sums, strict=True):
+        rows = prepared[j].exposures.rows
+        out[j, rows] = s[: len(rows)]
     for j, p in enumerate(prepared):
-        out[j, p.exposures.rows] = sums[j, p.exposures.rows]
+        if p.refinement is not None:
+            out[j, p.exposures.rows] = p.refinement.intensity
     return out

@@ -66,7 +66,11 @@ LABELS = {
     "pole_dec_deg": ("float64", np.nan, "spin pole declination (deg)"),
     "period_s": ("float64", np.nan, "spin period (s)"),
     "phase_deg": ("float64", np.nan, "spin phase at t_s = 0 (deg)"),
-    "subsamples": ("int32", 0, "sub-exposures per exposure (motion blur)"),
+    "subsamples": (
+        "int32",
+        0,
+        "sub-exposures per exposure of the per-curve rule (adaptive blur starts there)",
+    ),
     "shadows": ("bool", False, "self-shadowing rendered"),
     "geometry": ("str", "", "'synthetic' or 'pass'"),
     "utc_start": ("str", "", "UTC of the first sample"),

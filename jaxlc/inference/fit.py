@@ -32,7 +32,7 @@ from jaxlc.inference.harmonics import median_step_s
 from jaxlc.inference.mcmc import FitSettings
 from jaxlc.inference.model import MC_NAMES, N_LM, spin_model, to_device
 from jaxlc.inference.period import analyse_period, distinct_periods
-from jaxlc.inference.search import multistart
+from jaxlc.inference.search import multistart, refine_mode
 from jaxlc.io.files import atomic_output
 from jaxlc.scene import Scene
 
@@ -140,11 +140,16 @@ def fit_spin(
         for i, m in enumerate(modes)
         if m.chi2 - best_chi2 < settings.mode_delta_chi2 and i < settings.mcmc_modes
     ]
-    # One exact model for every sampled mode: the exposures as the render plan
-    # samples them for the fastest of their spins (one compilation).
-    model = spin_model(scene, data, min(modes[i].period_s for i in sampled), exact=True)
+    # The exact model of each sampled mode: its exposures sampled as the render
+    # plan samples them for the mode's spin (adaptive sub-exposures chosen at the
+    # mode, as a render of that spin chooses them), its reference period the
+    # fastest sampled spin's.
+    period_ref = min(modes[i].period_s for i in sampled)
     runs, tables = {}, []
     for n, i in enumerate(sampled):
+        model = spin_model(scene, data, period_ref, exact=True, theta=modes[i].theta_lm)
+        if model.adapted:  # its own sub-exposures: its optimum moved a little
+            modes[i] = refine_mode(model, data, modes[i])
         stage = f"emcee mode {n + 1}/{len(sampled)} (P {modes[i].period_s:.4g} s)"
         log(f"emcee around mode {i} (Δχ² = {modes[i].chi2 - best_chi2:.1f})")
         try:
@@ -230,7 +235,7 @@ def fit_spin(
         "data": {"samples": data.n, "limit_mag": data.limit_mag},
         "solver": [dataclasses.asdict(r) for r in reports],
         "model": {
-            "subsamples": model.subsamples,
+            "subsamples": model.instants_per_exposure,
             "facets": model.obj.n_facets,
             "shadows": model.obj.shadow is not None,
         },

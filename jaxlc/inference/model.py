@@ -46,7 +46,8 @@ from jaxlc.body.attitude import Spin, phase_at_offset_deg, pole_vector, referenc
 from jaxlc.body.mesh import Facets
 from jaxlc.inference.data import FitData, soft_clip
 from jaxlc.rendering.kernel import KernelInputs, SpaceObject, exposure_intensity
-from jaxlc.rendering.prepare import prepare
+from jaxlc.rendering.prepare import adapt, prepare
+from jaxlc.rendering.render import evaluate_instants
 from jaxlc.scene import Scene
 
 N_LM = 6
@@ -71,6 +72,8 @@ class SpinModel(eqx.Module):
         body_axis, body_ref: (3,) spin axis and reference direction in the body frame.
         floor_m2_sr: intensity floor that keeps unlit samples finite in magnitude.
         limit_mag: faint clipping level.
+        adapted: whether the exposures' instants were chosen at a spin
+            (:func:`spin_model`'s ``theta``), not the plan's fixed count.
     """
 
     obj: SpaceObject
@@ -81,10 +84,17 @@ class SpinModel(eqx.Module):
     body_ref: jax.Array
     floor_m2_sr: jax.Array
     limit_mag: jax.Array
+    adapted: bool = eqx.field(static=True, default=False)
 
     @property
     def n(self) -> int:
         return self.inputs.n_rows
+
+    @property
+    def instants_per_exposure(self) -> float:
+        """Sub-exposure instants per exposure, on average (padding left out)."""
+        w = np.asarray(self.inputs.weight)
+        return float(np.count_nonzero(w > 0)) / max(self.inputs.n_rows, 1)
 
     @property
     def subsamples(self) -> int:
@@ -132,6 +142,7 @@ def spin_model(
     directions: int = 128,
     max_subsamples: int | None = None,
     floor: bool = True,
+    theta=None,
 ) -> SpinModel:
     """The fit model of a scene over ``data``: exact (its facets, its shadows) or coarse.
 
@@ -148,6 +159,13 @@ def spin_model(
             normal bins (:func:`coarsen_facets`) and no shadows.
         max_subsamples: a cap on the sub-exposures per exposure (the search).
         floor: add the intensity floor (off: exact magnitudes, +inf where dark).
+        theta: (6,) host LM coordinates of a spin: where the render plan asks for
+            adaptive sub-exposures, they are chosen for this spin
+            (:func:`jaxlc.rendering.prepare.adapt`, as :func:`jaxlc.render`
+            chooses them for a scene's spin) and kept for every θ the model is
+            evaluated at (the MCMC around one mode). Without it the exposures
+            get the plan's fixed count for the trial period (the search and
+            the refinement).
     """
     period_ref = float(np.float32(period_s))  # exactly the device's reference
     trial = scene.with_spin(period_ref, epoch_utc=data.epoch_utc)
@@ -170,7 +188,7 @@ def spin_model(
     b = np.asarray(trial.attitude.body_axis, np.float64)
     area = float(scene.facets.areas_m2.sum())
     f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
-    return SpinModel(
+    model = SpinModel(
         obj=prep.object,
         inputs=prep.inputs,
         period_ref_s=f32(period_ref),
@@ -180,6 +198,12 @@ def spin_model(
         floor_m2_sr=f32(FLOOR_PER_AREA * area if floor else 0.0),
         limit_mag=f32(data.limit_mag),
     )
+    if theta is None or not prep.adaptive:
+        return model
+    t = to_device(model, theta)
+    obj = eqx.tree_at(lambda o: o.attitude, prep.object, model.attitude(t[:3], t[3], t[4]))
+    adapted = adapt([dataclasses.replace(prep, object=obj)], evaluate_instants)[0]
+    return dataclasses.replace(model, inputs=adapted.inputs, adapted=True)
 
 
 # ---------------------------------------------------------------------------

@@ -234,6 +234,21 @@ def _batch_magnitudes(model: SpinModel, thetas):
     return jax.vmap(model.magnitudes)(thetas)
 
 
+def refine_mode(model: SpinModel, data: FitData, mode: Mode, steps: int = 12) -> Mode:
+    """The mode moved to its optimum on ``model`` (e.g. with the sub-exposures chosen at
+    the mode), by ``steps`` LM iterations; its noise re-estimated for a curve without
+    errors. The mode is returned as it was if the solve fails."""
+    theta, cost, _ = least_squares(model, data, mode.theta_lm[None], steps, "mode")
+    if not np.isfinite(cost[0]):
+        return mode
+    m = np.asarray(_batch_magnitudes(model, to_device(model, theta)), np.float64)
+    r = m[0] - soft_clip(data.mag, data.limit_mag)
+    noise = math.sqrt(float(np.sum(r**2)) / max(data.n - N_LM, 1))
+    return dataclasses.replace(
+        mode, theta_lm=theta[0], noise_mag=noise if np.all(data.mag_err == 0) else 0.0
+    )
+
+
 def match_offset(model: SpinModel, data: FitData, starts: np.ndarray) -> np.ndarray:
     """Set each start's Δm to the median offset between data and model."""
     m = np.asarray(_batch_magnitudes(model, to_device(model, starts)), np.float64)

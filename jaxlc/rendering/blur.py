@@ -1,26 +1,24 @@
-"""Motion blur: average the flux over sub-exposures, as many as the scene needs.
+"""Motion blur: how fast the body turns against the sharpest feature of the scene.
 
-During an exposure of e seconds the Sun and observer directions move through
-the body frame by up to Δθ = ω e, with ω the attitude's rotation rate plus the
-apparent angular rates of the Sun and observer directions. The light curve
-changes on the angular scale σ of the sharpest feature of the scene:
+During an exposure of e seconds the body turns by Δθ = ω e, with ω the
+attitude's rotation rate (the kernel holds each row's Sun and observer
+directions through its exposure, so only the attitude moves the body frame).
+The light curve changes on the angular scale σ of the sharpest feature of the
+scene:
 
 * a specular lobe of exponent n: σ = 1/√n ((n·h)^n ≈ exp(−n θ²/2));
 * a shadow edge crossing a facet: σ ≈ √(facet area) / object size;
 * otherwise (diffuse facets turning towards or away): σ = 0.25 rad.
 
-The exposure is sampled at its midpoints t + e (k + ½)/n, k = 0 … n−1, with
-n = ⌈k Δθ/σ⌉ samples, 1 when Δθ < σ/10, and at most ``max_subsamples``. The
-midpoint rule's error falls as (Δθ/(nσ))²; k is set per feature so that the
-95th-percentile error over a pass stays near 0.002 mag (experiments/pareto.py,
-experiments/results/pareto.csv):
-
-* specular lobe, diffuse: k = 2.5 (S5 CubeSat, n = 51: p95 0.0015 mag; the
-  p95 error is ≈ 0.01 mag × (Δθ/(nσ))²);
-* shadow edge: k = 0.8. σ is clipped at 0.02 rad and only part of the flux
-  is near an edge, so its error is ~10× smaller for the same Δθ/(nσ)
-  (S4 Falcon 9 stage: p95 ≈ 0.0012 mag × (Δθ/(nσ))²; 4 sub-exposures where
-  k = 2.5 asked for 11 give p95 0.0015 mag).
+When Δθ < σ/10 blur is negligible: one instant, mid-exposure. Otherwise the
+sub-exposures are chosen per exposure by the adaptive quadrature of
+:mod:`jaxlc.rendering.adaptive`, which starts one level below the count of this
+module's per-curve rule, n = ⌈k Δθ/σ⌉ midpoints (at most ``max_subsamples``;
+k = 2.5 for lobes and diffuse turn-on, 0.8 for shadow edges). That rule alone
+(a fixed count, ``[render] subsamples``, or what the search model of the spin
+fit uses) bounds the error only on average: over the demo pass its p99 error
+was 2.4 mag for S3 (dark end-on samples) and 0.06 mag for S4
+(``experiments/results/blur_adaptive.csv``).
 """
 
 from __future__ import annotations
@@ -51,6 +49,8 @@ class BlurChoice:
         scale_rad: angular scale σ of the sharpest feature.
         feature: what set σ.
         capped: whether ``max_subsamples`` limited the count.
+        adaptive: the count is refined per exposure (:mod:`jaxlc.rendering.adaptive`);
+            ``subsamples`` is then the rule's estimate for the fastest motion.
     """
 
     subsamples: int
@@ -59,6 +59,12 @@ class BlurChoice:
     scale_rad: float
     feature: str
     capped: bool = False
+    adaptive: bool = False
+
+    @property
+    def negligible(self) -> bool:
+        """Whether the exposures move less than a tenth of the sharpest feature."""
+        return self.sweep_rad < NEGLIGIBLE_FRACTION * self.scale_rad
 
     def describe(self) -> str:
         if self.subsamples == 1:
@@ -67,6 +73,12 @@ class BlurChoice:
                 f"{self.feature} scale {math.degrees(self.scale_rad):.3g}°)"
             )
         cap = ", capped" if self.capped else ""
+        if self.adaptive:
+            return (
+                f"adaptive per exposure (sweep {math.degrees(self.sweep_rad):.3g}° at "
+                f"{math.degrees(self.rate_rad_s):.3g}°/s, {self.feature} scale "
+                f"{math.degrees(self.scale_rad):.3g}°; the fixed rule would take {self.subsamples})"
+            )
         return (
             f"{self.subsamples} per exposure{cap} (sweep {math.degrees(self.sweep_rad):.3g}° "
             f"at {math.degrees(self.rate_rad_s):.3g}°/s over the {self.feature} scale "

@@ -31,7 +31,10 @@ class Exposures:
         row: (M,) index into ``rows`` of each instant, non-decreasing.
         weight: (M,) quadrature weights; those of one exposure sum to 1.
         sun_dir, obs_dir: (M, 3) inertial unit vectors at each instant.
-        subsamples: instants per exposure (the same for every row).
+        subsamples: instants per exposure when it is the same for every row;
+            None when exposures have their own counts (adaptive quadrature,
+            :mod:`jaxlc.rendering.adaptive`): ``row`` says which exposure owns
+            each instant.
         quadrature: ``"midpoint"`` (instants t + e (k + ½)/S, equal weights) or
             ``"endpoints"`` (t + e k/(S − 1), trapezoid weights: what a renderer
             that keyframes the exposure's ends needs).
@@ -43,7 +46,7 @@ class Exposures:
     weight: np.ndarray
     sun_dir: np.ndarray
     obs_dir: np.ndarray
-    subsamples: int
+    subsamples: int | None
     quadrature: str = "midpoint"
 
     @property
@@ -95,4 +98,62 @@ def exposure_instants(
         obs_dir=np.repeat(geo.obs_dir[rows], s, axis=0),
         subsamples=s,
         quadrature=quadrature,
+    )
+
+
+def nested_fractions(level: int) -> np.ndarray:
+    """Fractions of the exposure of the nested midpoint rule of level L: the
+    centres (j + ½)/3ᴸ, j = 0 … 3ᴸ − 1, of 3ᴸ equal parts (level L + 1 keeps them)."""
+    n = 3 ** int(level)
+    return (np.arange(n) + 0.5) / n
+
+
+def added_fractions(level: int) -> np.ndarray:
+    """Fractions that level L ≥ 1 of the nested midpoint rule adds to level L − 1:
+    c ± 1/3ᴸ around each centre c of level L − 1 (2 · 3ᴸ⁻¹ of them)."""
+    c = nested_fractions(level - 1)
+    d = 1.0 / 3 ** int(level)
+    return np.sort(np.concatenate([c - d, c + d]))
+
+
+def probe_instants(geo: GeometryArrays, rows, fractions, t0_s: float = 0.0) -> Exposures:
+    """Instants at the same ``fractions`` of each exposure of ``rows``, each instant
+    its own output row (weight 1): what evaluating the kernel instant by instant needs."""
+    rows = np.asarray(rows, np.int64)
+    f = np.asarray(fractions, np.float64)
+    start = geo.t_start_s[rows] - t0_s
+    t = (start[:, None] + geo.exposure_s[rows][:, None] * f[None, :]).ravel()
+    m = len(t)
+    return Exposures(
+        rows=np.repeat(rows, len(f)),
+        t_s=t,
+        row=np.arange(m),
+        weight=np.ones(m),
+        sun_dir=np.repeat(geo.sun_dir[rows], len(f), axis=0),
+        obs_dir=np.repeat(geo.obs_dir[rows], len(f), axis=0),
+        subsamples=1,
+    )
+
+
+def nested_instants(geo: GeometryArrays, rows, levels, t0_s: float = 0.0) -> Exposures:
+    """The instants of the nested midpoint rule, level ``levels[i]`` for exposure ``rows[i]``
+    (3^level equal-weight instants each; :attr:`Exposures.subsamples` None unless all equal)."""
+    rows = np.asarray(rows, np.int64)
+    levels = np.asarray(levels, np.int64)
+    counts = 3**levels
+    owner = np.repeat(np.arange(len(rows)), counts)
+    # position of each instant within its exposure
+    first = np.concatenate([[0], np.cumsum(counts)[:-1]]) if len(rows) else np.zeros(0, np.int64)
+    j = np.arange(len(owner)) - np.repeat(first, counts)
+    frac = (j + 0.5) / np.repeat(counts, counts)
+    r = rows[owner]
+    same = len(rows) > 0 and np.all(levels == levels[0])
+    return Exposures(
+        rows=rows,
+        t_s=geo.t_start_s[r] - t0_s + geo.exposure_s[r] * frac,
+        row=owner,
+        weight=1.0 / np.repeat(counts, counts).astype(np.float64),
+        sun_dir=geo.sun_dir[r],
+        obs_dir=geo.obs_dir[r],
+        subsamples=int(counts[0]) if same else None,
     )

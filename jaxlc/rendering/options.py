@@ -8,8 +8,9 @@
     shadow_spacing = 0.005                    # sub-point spacing × object size
     shadow_max_subpoints = 512                # per facet
     shadow_interpolation = "bilinear"         # | "nearest"
-    blur = "auto"                             # | "off": sub-exposures as the motion needs
-    max_subsamples = 64                       # cap of the automatic choice
+    blur = "auto"                             # | "off": sub-exposures where the motion needs them
+    blur_tolerance_mag = 0.001                # error allowed per exposure (adaptive quadrature)
+    max_subsamples = 64                       # cap of the automatic choice (81 adaptive: 3⁴)
     # subsamples = 16                         # or a fixed number per exposure
 """
 
@@ -30,7 +31,9 @@ class RenderOptions:
         shadows: ``"auto"`` (approximate self-shadowing where the mesh can
             shadow itself) or ``"off"``.
         shadow: resolution of the shadow approximation.
-        blur: ``"auto"`` (sub-exposures as needed) or ``"off"`` (one, at mid-exposure).
+        blur: ``"auto"`` (sub-exposures per exposure as its own motion needs,
+            :mod:`jaxlc.rendering.adaptive`) or ``"off"`` (one, at mid-exposure).
+        blur_tolerance_mag: the error allowed per exposure by the adaptive quadrature.
         subsamples: a fixed number of sub-exposures instead of the automatic choice.
         max_subsamples: cap of the automatic choice.
     """
@@ -38,6 +41,7 @@ class RenderOptions:
     shadows: str = "auto"
     shadow: ShadowSettings = dataclasses.field(default_factory=ShadowSettings)
     blur: str = "auto"
+    blur_tolerance_mag: float = 1e-3
     subsamples: int | None = None
     max_subsamples: int = 64
 
@@ -46,6 +50,9 @@ class RenderOptions:
             raise JaxlcError(f"shadows = {self.shadows!r} must be 'auto' or 'off'")
         if self.blur not in ("auto", "off"):
             raise JaxlcError(f"blur = {self.blur!r} must be 'auto' or 'off'")
+        tol = self.blur_tolerance_mag
+        if not (isinstance(tol, (int, float)) and 1e-6 <= tol <= 1.0):
+            raise JaxlcError(f"blur_tolerance_mag = {tol!r} must be in [1e-6, 1] mag")
         if self.subsamples is not None and not (
             isinstance(self.subsamples, int) and 1 <= self.subsamples <= 4096
         ):
@@ -63,6 +70,7 @@ class RenderOptions:
             "shadow_max_subpoints": s.max_subpoints,
             "shadow_interpolation": s.interpolation,
             "blur": self.blur,
+            "blur_tolerance_mag": self.blur_tolerance_mag,
             "max_subsamples": self.max_subsamples,
         }
         if self.subsamples is not None:
@@ -84,6 +92,7 @@ def render_options_from_table(sec: Section) -> RenderOptions:
         "shadow_interpolation", str, default="bilinear", check=choice("bilinear", "nearest")
     )
     blur = sec.get("blur", str, default="auto", check=choice("auto", "off"))
+    tol = sec.get("blur_tolerance_mag", float, default=1e-3, check=in_range(1e-6, 1.0), what="mag")
     subsamples = sec.get("subsamples", float, default=None, check=whole(1, 4096))
     max_subsamples = sec.get("max_subsamples", float, default=64.0, check=whole(1, 4096))
     sec.finish()
@@ -93,6 +102,7 @@ def render_options_from_table(sec: Section) -> RenderOptions:
             shadows=shadows,
             shadow=shadow,
             blur=blur,
+            blur_tolerance_mag=float(tol),
             subsamples=None if subsamples is None else int(subsamples),
             max_subsamples=int(max_subsamples),
         )

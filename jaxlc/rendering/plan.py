@@ -20,7 +20,6 @@ from jaxlc.body.shadow import ShadowSettings
 from jaxlc.rendering.blur import (
     BlurChoice,
     choose_subsamples,
-    direction_rate_rad_s,
     feature_scale_rad,
 )
 from jaxlc.rendering.options import RenderOptions
@@ -117,26 +116,25 @@ def choose_blur(
 ) -> tuple[BlurChoice, str]:
     """Sub-exposures per exposure for ``rows`` of ``geo``, and why (:mod:`jaxlc.rendering.blur`).
 
-    The body-frame rate is the attitude's rotation rate plus the fastest
-    apparent rate of the Sun and observer directions over the rows.
+    Within an exposure the kernel holds the row's Sun and observer directions
+    (positions are per row): only the attitude turns the body, so its rotation
+    rate alone sets the sweep. A body that does not turn needs one instant per
+    exposure whatever the table's rows do (rows of random geometries included).
     """
     scale, feature = feature_scale_rad(materials, facets, shadowed=shadowed)
-    t = geo.t_start_s[rows] + 0.5 * geo.exposure_s[rows]
-    geo_rate = max(
-        direction_rate_rad_s(geo.sun_dir[rows], t), direction_rate_rad_s(geo.obs_dir[rows], t)
-    )
     exposure = float(np.max(geo.exposure_s[rows])) if len(rows) else 0.0
-    auto = choose_subsamples(
-        exposure, attitude_rate_rad_s + geo_rate, scale, feature, options.max_subsamples
-    )
+    auto = choose_subsamples(exposure, attitude_rate_rad_s, scale, feature, options.max_subsamples)
     if options.subsamples is not None:
         blur = dataclasses.replace(auto, subsamples=options.subsamples, capped=False)
         reason = f"{options.subsamples} per exposure (fixed; automatic: {auto.subsamples})"
     elif options.blur == "off":
         blur = dataclasses.replace(auto, subsamples=1, capped=False)
         reason = f"off (requested; automatic: {auto.subsamples}), attitude at mid-exposure"
-    else:
+    elif auto.negligible or options.max_subsamples < 3:
         blur, reason = auto, auto.describe()
+    else:
+        blur = dataclasses.replace(auto, adaptive=True)
+        reason = blur.describe() + f", ≤ {options.blur_tolerance_mag:g} mag per exposure"
     if exposure == 0.0 and len(rows):
         reason = "1 per exposure (zero exposure time)"
     return blur, reason

@@ -40,6 +40,13 @@ from jaxlc.body.facet_model import facet_model, pad_facets
 from jaxlc.body.mesh import Facets
 from jaxlc.body.shadow import ShadowSettings, shadow_data, shadow_table
 from jaxlc.errors import JaxlcError
+from jaxlc.rendering.adaptive import (
+    Curve,
+    Refinement,
+    first_level_for,
+    max_level_for,
+    refine,
+)
 from jaxlc.rendering.exposures import Exposures, exposure_instants
 from jaxlc.rendering.kernel import KernelInputs, SpaceObject
 from jaxlc.rendering.observation import GeometryArrays, as_geometry
@@ -140,19 +147,29 @@ def kernel_inputs(
     dtype = np.dtype(dtype)
     e, s, n_rows = exposures, exposures.subsamples, exposures.n_rows
     arrays = [e.t_s, e.sun_dir, e.obs_dir, e.weight]
+    row = e.row.astype(np.int32)
     if pad_rows > n_rows and n_rows:
         extra = pad_rows - n_rows
+        k = s or 1  # variable counts: each padding row is one copy of the last instant
         arrays = [
-            np.concatenate([a, np.tile(a[-s:], (extra,) + (1,) * (a.ndim - 1))]) for a in arrays
+            np.concatenate([a, np.tile(a[-k:], (extra,) + (1,) * (a.ndim - 1))]) for a in arrays
         ]
+        if s is None:
+            arrays[3][len(e.weight) :] = 1.0
+        row = np.concatenate([row, np.repeat(np.arange(n_rows, pad_rows, dtype=np.int32), k)])
         n_rows = pad_rows
+    if s is None and len(row):  # variable counts: instants padded to a bucket size too
+        extra = bucket_size(len(row)) - len(row)
+        arrays = [np.concatenate([a, np.repeat(a[-1:], extra, axis=0)]) for a in arrays]
+        arrays[3][len(row) :] = 0.0  # zero weight: no contribution
+        row = np.concatenate([row, np.full(extra, row[-1], np.int32)])
     t_s, sun, obs, weight = arrays
     return KernelInputs(
         times=attitude.times(t_s, **(exact or {})),
         sun_dir=sun.astype(dtype),
         obs_dir=obs.astype(dtype),
         weight=weight.astype(dtype),
-        row=np.repeat(np.arange(n_rows, dtype=np.int32), s),
+        row=row,
         n_rows=n_rows,
         subsamples=s,
     )
@@ -183,6 +200,10 @@ class Prepared:
         inputs: the same instants as the kernel takes them.
         precision: ``"float32"`` or ``"float64"``.
         table: the validated geometry table (None when given as arrays).
+        options: the render options used.
+        t0_s: the attitude's time origin, seconds after the geometry's first row.
+        refinement: the adaptive quadrature's result when :func:`adapt` chose
+            the instants (their mean I/E included), else None.
     """
 
     scene: Scene
@@ -193,6 +214,14 @@ class Prepared:
     inputs: KernelInputs
     precision: str
     table: pd.DataFrame | None = None
+    options: RenderOptions | None = None
+    t0_s: float = 0.0
+    refinement: Refinement | None = None
+
+    @property
+    def adaptive(self) -> bool:
+        """Whether the plan asks for adaptive sub-exposures (and the instants are not fixed)."""
+        return self.plan.blur.adaptive and self.exposures.quadrature == "midpoint"
 
 
 def prepare(
@@ -250,6 +279,8 @@ def prepare(
     )
     with jax.enable_x64(precision == "float64"):
         obj = space_object(scene, origin, precision, plan.shadow, progress, facets)
+    if subsamples is not None and plan.blur.adaptive:
+        plan = dataclasses.replace(plan, blur=dataclasses.replace(plan.blur, adaptive=False))
     exposures = exposure_instants(geo, rows, subsamples or plan.subsamples, quadrature, t0)
     inputs = kernel_inputs(
         obj.attitude,
@@ -258,7 +289,74 @@ def prepare(
         scene.attitude.exact_parameters(),
         bucket_size(len(rows)) if pad_rows else 0,
     )
-    return Prepared(scene, geo, plan, obj, exposures, inputs, precision, table)
+    return Prepared(
+        scene, geo, plan, obj, exposures, inputs, precision, table, options or scene.render, t0
+    )
+
+
+def with_exposures(prepared: Prepared, exposures: Exposures, pad_rows: bool = False) -> Prepared:
+    """``prepared`` with other instants (e.g. an adaptive quadrature's), kernel inputs remade."""
+    inputs = kernel_inputs(
+        prepared.object.attitude,
+        exposures,
+        prepared.precision,
+        prepared.scene.attitude.exact_parameters(),
+        bucket_size(exposures.n_rows) if pad_rows else 0,
+    )
+    return dataclasses.replace(prepared, exposures=exposures, inputs=inputs)
+
+
+def probe_inputs(prepared: Prepared, probe: Exposures, pad: bool = True) -> KernelInputs:
+    """Kernel inputs that give I/E at each instant of ``probe`` (one instant per row),
+    padded to a :func:`bucket_size` (``pad``) so that a few sizes share one compilation."""
+    return kernel_inputs(
+        prepared.object.attitude,
+        probe,
+        prepared.precision,
+        prepared.scene.attitude.exact_parameters(),
+        bucket_size(probe.n_rows) if pad else 0,
+    )
+
+
+def adapt(prepared: list[Prepared], evaluate, pad_rows: bool = False) -> list[Prepared]:
+    """The adaptive sub-exposures (:mod:`jaxlc.rendering.adaptive`) of curves whose plan asks
+    for them; the others are returned as they are.
+
+    Args:
+        prepared: curves from :func:`prepare`.
+        evaluate: callable(list of (Prepared, probe :class:`Exposures`)) → list of
+            (M,) I/E at the probes' instants (see :func:`probe_inputs`).
+        pad_rows: pad the new kernel inputs to :func:`bucket_size` rows.
+    """
+    todo = [i for i, p in enumerate(prepared) if p.adaptive and p.exposures.n_rows]
+    if not todo:
+        return list(prepared)
+    curves = [
+        Curve(
+            prepared[i].geometry,
+            prepared[i].exposures.rows,
+            prepared[i].t0_s,
+            first_level_for(prepared[i].plan.blur.subsamples),
+        )
+        for i in todo
+    ]
+    options = [prepared[i].options or RenderOptions() for i in todo]
+    tol = {o.blur_tolerance_mag for o in options}
+    level = {max_level_for(o.max_subsamples) for o in options}
+    if len(tol) > 1 or len(level) > 1:
+        raise JaxlcError("adapt: curves refined together must share blur options")
+    found = refine(
+        curves,
+        lambda probes: evaluate([(prepared[i], p) for i, p in zip(todo, probes, strict=True)]),
+        tol.pop(),
+        level.pop(),
+    )
+    out = list(prepared)
+    for i, r in zip(todo, found, strict=True):
+        out[i] = dataclasses.replace(
+            with_exposures(prepared[i], r.exposures, pad_rows), refinement=r
+        )
+    return out
 
 
 def rotation_matrices(prepared: Prepared) -> np.ndarray:

@@ -10,6 +10,7 @@ Invisible rows keep their row with NaN values.
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import jax
@@ -22,7 +23,7 @@ from jaxlc.rendering import photometry
 from jaxlc.rendering.kernel import exposure_intensity
 from jaxlc.rendering.observation import GeometryArrays
 from jaxlc.rendering.options import RenderOptions
-from jaxlc.rendering.prepare import Prepared, prepare
+from jaxlc.rendering.prepare import Prepared, adapt, prepare, probe_inputs
 from jaxlc.scene import Scene
 from jaxlc.xla import jit
 
@@ -41,8 +42,11 @@ def intensity(prepared: Prepared) -> np.ndarray:
     rows = prepared.exposures.rows
     if len(rows) == 0:
         return out
-    with jax.enable_x64(prepared.precision == "float64"):
-        got = np.asarray(_kernel(prepared.object, prepared.inputs), dtype=np.float64)
+    if prepared.refinement is not None:
+        got = prepared.refinement.intensity
+    else:
+        with jax.enable_x64(prepared.precision == "float64"):
+            got = np.asarray(_kernel(prepared.object, prepared.inputs), dtype=np.float64)
     got = got[: len(rows)]
     if not np.all(np.isfinite(got)):
         bad = int(np.count_nonzero(~np.isfinite(got)))
@@ -51,6 +55,21 @@ def intensity(prepared: Prepared) -> np.ndarray:
             f"{prepared.scene.source}; please report this with the scene and geometry files"
         )
     out[rows] = got
+    return out
+
+
+def evaluate_instants(requests) -> list[np.ndarray]:
+    """I/E at every instant of each (prepared curve, probe) pair, one kernel call each
+    (the evaluator of :func:`jaxlc.rendering.prepare.adapt` for single curves)."""
+    out = []
+    for prepared, probe in requests:
+        m = len(probe.t_s)
+        if m == 0:
+            out.append(np.zeros(0))
+            continue
+        with jax.enable_x64(prepared.precision == "float64"):
+            got = _kernel(prepared.object, probe_inputs(prepared, probe))
+            out.append(np.asarray(got, np.float64)[:m])
     return out
 
 
@@ -84,8 +103,13 @@ def render(
     """
     with jax.enable_x64(precision == "float64"):
         prepared = prepare(scene, geometry, options, precision, pad_rows=True, progress=progress)
+        prepared = adapt([prepared], evaluate_instants, pad_rows=True)[0]
     out = lightcurve_table(prepared.table, prepared.geometry, intensity(prepared))
     plan = prepared.plan
+    if prepared.refinement is not None:
+        plan = dataclasses.replace(
+            plan, blur_reason=f"{plan.blur_reason}: {prepared.refinement.describe()}"
+        )
     out.attrs.update(
         {
             "frame": prepared.table.attrs.get("frame", "unknown"),
