@@ -136,13 +136,46 @@ def log_prob_fn(model: SpinModel, data: FitData, ln_period_center: float):
 
 
 @filter_jit
-def _jacobian(model: SpinModel, x5):
-    """(N, 5) ∂m/∂θ_mc[:5] (the noise coordinate does not enter the magnitudes)."""
+def _value_and_jacobian(model: SpinModel, x5):
+    """(N,) magnitudes and (N, 5) ∂m/∂θ_mc[:5] (the noise coordinate does not enter them)."""
 
     def mags(x):
-        return model.magnitudes(mc_to_lm(jnp.concatenate([x, jnp.zeros(1, x.dtype)])))
+        m = model.magnitudes(mc_to_lm(jnp.concatenate([x, jnp.zeros(1, x.dtype)])))
+        return m, m
 
-    return jax.jacfwd(mags)(x5)
+    jac, value = jax.jacfwd(mags, has_aux=True)(x5)
+    return value, jac
+
+
+#: Gauss–Newton steps that move a mode's centre to the sampled model's optimum.
+RECENTRE_STEPS = 3
+
+
+def recentre(model: SpinModel, data: FitData, centre: np.ndarray, sigma: np.ndarray):
+    """Gauss–Newton steps from ``centre`` (MCMC coordinates) on ``model``: the mode's
+    optimum on the model sampled, which may differ a little from the model it was
+    found on (e.g. sub-exposures chosen at the mode). Returns the centre (only
+    steps that lower χ² are taken), its magnitudes' residuals and the Jacobian there."""
+    mag = soft_clip(data.mag, data.limit_mag)
+
+    def at(c):
+        m, j = _value_and_jacobian(model, to_device(model, c, index=2)[:5])
+        return np.asarray(m, np.float64) - mag, np.asarray(j, np.float64)
+
+    r, jac = at(centre)
+    chi2 = float(np.sum((r / sigma) ** 2))
+    for _ in range(RECENTRE_STEPS):
+        jw = jac / sigma[:, None]
+        step, *_ = np.linalg.lstsq(jw, -r / sigma, rcond=None)
+        trial = centre.copy()
+        trial[:5] += step
+        trial[1] = np.clip(trial[1], -0.999999, 0.999999)
+        r2, jac2 = at(trial)
+        chi2_2 = float(np.sum((r2 / sigma) ** 2))
+        if not (np.isfinite(chi2_2) and chi2_2 < chi2):
+            break
+        centre, r, jac, chi2 = trial, r2, jac2, chi2_2
+    return centre, r, jac
 
 
 def initial_ball(
@@ -150,6 +183,7 @@ def initial_ball(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """MCMC starts drawn from the Laplace approximation at a mode.
 
+    The centre is first moved to the mode's optimum on ``model`` (:func:`recentre`).
     Covariance σ² (JᵀJ)⁻¹ of the first five coordinates from the model's
     Jacobian (σ: the mode's noise, or the data errors); ln σ gets 1/(2N).
     Starting in equilibrium keeps the burn-in short. When the residuals are
@@ -162,13 +196,18 @@ def initial_ball(
     """
     floor = NOISE_BOUNDS_MAG[0]
     noise = max(mode.noise_mag, floor)
-    centre = lm_to_mc(mode.theta_lm, noise)
     sigma = np.sqrt(data.mag_err**2 + noise**2)
-    at_floor = mode.noise_mag < floor * math.exp(1.0 / data.n)
+    centre, r, jac = recentre(model, data, lm_to_mc(mode.theta_lm, noise), sigma)
+    noise_mag = mode.noise_mag
+    if np.all(data.mag_err == 0):  # the noise of a curve without errors, on this model
+        noise_mag = math.sqrt(float(np.sum(r**2)) / max(data.n - N_MC + 1, 1))
+        noise = max(noise_mag, floor)
+        sigma = np.full(data.n, noise)
+    centre[5] = math.log(noise)
+    at_floor = noise_mag < floor * math.exp(1.0 / data.n)
     if at_floor:
         centre[5] = math.log(floor) + 1.0 / data.n
 
-    jac = np.asarray(_jacobian(model, to_device(model, centre, index=2)[:5]), np.float64)
     jw = jac / sigma[:, None]
     fisher = jw.T @ jw + np.diag([1e-6, 1e-6, 1e-12, 1e-6, 1e-6])
     cov = np.zeros((N_MC, N_MC))

@@ -143,6 +143,7 @@ def spin_model(
     max_subsamples: int | None = None,
     floor: bool = True,
     theta=None,
+    tolerance_mag: float | None = None,
 ) -> SpinModel:
     """The fit model of a scene over ``data``: exact (its facets, its shadows) or coarse.
 
@@ -166,11 +167,15 @@ def spin_model(
             evaluated at (the MCMC around one mode). Without it the exposures
             get the plan's fixed count for the trial period (the search and
             the refinement).
+        tolerance_mag: the adaptive sub-exposures' tolerance instead of the
+            scene's ``blur_tolerance_mag`` (the fit ties it to the data's noise).
     """
     period_ref = float(np.float32(period_s))  # exactly the device's reference
     trial = scene.with_spin(period_ref, epoch_utc=data.epoch_utc)
     options = scene.render
     facets = None
+    if tolerance_mag is not None:
+        options = dataclasses.replace(options, blur_tolerance_mag=float(tolerance_mag))
     if not exact:
         options = dataclasses.replace(options, shadows="off")
         facets = coarsen_facets(scene.body[1], directions)
