@@ -36,11 +36,15 @@ import pandas as pd
 
 from jaxlc.errors import JaxlcError
 from jaxlc.inference.data import FitData, soft_clip
+from jaxlc.inference.laplace import (
+    NOISE_BOUNDS_MAG,
+    initial_ball,
+    laplace_log_evidence,
+)
 from jaxlc.inference.model import (
     N_MC,
     SpinModel,
     angle_between_deg,
-    lm_to_mc,
     ln_period_ref,
     mc_to_lm,
     pole_radec_deg,
@@ -50,7 +54,6 @@ from jaxlc.inference.search import Mode
 from jaxlc.rendering.kernel import time_chunk
 from jaxlc.xla import filter_jit
 
-NOISE_BOUNDS_MAG = (1e-3, 2.0)
 DMAG_BOUNDS = (-10.0, 10.0)
 PERIOD_PRIOR_FACTOR = 3.0
 
@@ -133,94 +136,6 @@ def log_prob_fn(model: SpinModel, data: FitData, ln_period_center: float):
         return np.asarray(out, np.float64)
 
     return log_prob
-
-
-@filter_jit
-def _value_and_jacobian(model: SpinModel, x5):
-    """(N,) magnitudes and (N, 5) ∂m/∂θ_mc[:5] (the noise coordinate does not enter them)."""
-
-    def mags(x):
-        m = model.magnitudes(mc_to_lm(jnp.concatenate([x, jnp.zeros(1, x.dtype)])))
-        return m, m
-
-    jac, value = jax.jacfwd(mags, has_aux=True)(x5)
-    return value, jac
-
-
-#: Gauss–Newton steps that move a mode's centre to the sampled model's optimum.
-RECENTRE_STEPS = 3
-
-
-def recentre(model: SpinModel, data: FitData, centre: np.ndarray, sigma: np.ndarray):
-    """Gauss–Newton steps from ``centre`` (MCMC coordinates) on ``model``: the mode's
-    optimum on the model sampled, which may differ a little from the model it was
-    found on (e.g. sub-exposures chosen at the mode). Returns the centre (only
-    steps that lower χ² are taken), its magnitudes' residuals and the Jacobian there."""
-    mag = soft_clip(data.mag, data.limit_mag)
-
-    def at(c):
-        m, j = _value_and_jacobian(model, to_device(model, c, index=2)[:5])
-        return np.asarray(m, np.float64) - mag, np.asarray(j, np.float64)
-
-    r, jac = at(centre)
-    chi2 = float(np.sum((r / sigma) ** 2))
-    for _ in range(RECENTRE_STEPS):
-        jw = jac / sigma[:, None]
-        step, *_ = np.linalg.lstsq(jw, -r / sigma, rcond=None)
-        trial = centre.copy()
-        trial[:5] += step
-        trial[1] = np.clip(trial[1], -0.999999, 0.999999)
-        r2, jac2 = at(trial)
-        chi2_2 = float(np.sum((r2 / sigma) ** 2))
-        if not (np.isfinite(chi2_2) and chi2_2 < chi2):
-            break
-        centre, r, jac, chi2 = trial, r2, jac2, chi2_2
-    return centre, r, jac
-
-
-def initial_ball(
-    model: SpinModel, data: FitData, mode: Mode, walkers: int, rng: np.random.Generator
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """MCMC starts drawn from the Laplace approximation at a mode.
-
-    The centre is first moved to the mode's optimum on ``model`` (:func:`recentre`).
-    Covariance σ² (JᵀJ)⁻¹ of the first five coordinates from the model's
-    Jacobian (σ: the mode's noise, or the data errors); ln σ gets 1/(2N).
-    Starting in equilibrium keeps the burn-in short. When the residuals are
-    below the noise prior's floor (a noise-free curve, a perfect model), the
-    posterior of ln σ is an exponential of scale 1/N against the floor: the
-    ball is put there, not N·ln(2) e-folds up the slope.
-
-    Returns:
-        (walkers, 6) starts, the (6,) centre and the (6, 6) covariance.
-    """
-    floor = NOISE_BOUNDS_MAG[0]
-    noise = max(mode.noise_mag, floor)
-    sigma = np.sqrt(data.mag_err**2 + noise**2)
-    centre, r, jac = recentre(model, data, lm_to_mc(mode.theta_lm, noise), sigma)
-    noise_mag = mode.noise_mag
-    if np.all(data.mag_err == 0):  # the noise of a curve without errors, on this model
-        noise_mag = math.sqrt(float(np.sum(r**2)) / max(data.n - N_MC + 1, 1))
-        noise = max(noise_mag, floor)
-        sigma = np.full(data.n, noise)
-    centre[5] = math.log(noise)
-    at_floor = noise_mag < floor * math.exp(1.0 / data.n)
-    if at_floor:
-        centre[5] = math.log(floor) + 1.0 / data.n
-
-    jw = jac / sigma[:, None]
-    fisher = jw.T @ jw + np.diag([1e-6, 1e-6, 1e-12, 1e-6, 1e-6])
-    cov = np.zeros((N_MC, N_MC))
-    try:
-        c5 = np.linalg.inv(fisher)
-        np.linalg.cholesky(0.5 * (c5 + c5.T))
-        cov[:5, :5] = 0.5 * (c5 + c5.T)
-    except np.linalg.LinAlgError:
-        cov[:5, :5] = np.diag([0.01, 0.005, 1e-5, 0.01, 0.005]) ** 2
-    cov[5, 5] = 1.0 / data.n**2 if at_floor else 1.0 / (2 * data.n)
-    p0 = centre + rng.standard_normal((walkers, N_MC)) @ np.linalg.cholesky(cov).T
-    p0[:, 1] = np.clip(p0[:, 1], -0.999999, 0.999999)
-    return p0, centre, cov
 
 
 class IndependenceMove:
@@ -358,21 +273,6 @@ def run_emcee(
         "converged": bool(length >= settings.min_tau),
         "seconds": time.perf_counter() - t0,
     }
-
-
-def laplace_log_evidence(samples: np.ndarray, log_prob: np.ndarray) -> float:
-    """ln Z of one mode from its samples, treating the mode as Gaussian.
-
-    ln Z ≈ ln p(θ̂) + ½ ln det(2π Σ) with Σ the samples' covariance and
-    ln p(θ̂) = E[ln p] + d/2 (exact for a Gaussian). Mode weights are
-    exp(ln Z) normalised over the sampled modes.
-    """
-    d = samples.shape[1]
-    ok = np.isfinite(log_prob)
-    sign, logdet = np.linalg.slogdet(2 * np.pi * np.cov(samples[ok], rowvar=False))
-    if sign <= 0 or not np.any(ok):
-        return float("-inf")
-    return float(np.mean(log_prob[ok]) + 0.5 * d + 0.5 * logdet)
 
 
 def mode_weights(log_evidence) -> np.ndarray:
