@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import time
 from pathlib import Path
 from typing import Annotated
@@ -95,10 +96,14 @@ def render(
 
         plot_lightcurve(lc, plot, title=f"{Path(sc.source).stem}: {sc.mesh_path.name}")
     vis = int(lc["visible"].sum())
+    blur = f"{plan.subsamples} sub-exposure(s)"
+    found = re.search(r"[\d.]+ instants per exposure", lc.attrs.get("plan", ""))
+    if plan.blur.adaptive and found:
+        blur = f"adaptive blur, {found.group(0)}"
     console().print(
         f"rendered {len(lc)} samples ({vis} visible) of {sc.mesh_path.name} "
         f"({plan.triangles} triangles → {plan.facets} facets, "
         f"{'convex' if plan.convex else 'non-convex'}, "
-        f"{'shadows' if plan.shadow else 'no shadows'}, {plan.subsamples} sub-exposure(s)) "
+        f"{'shadows' if plan.shadow else 'no shadows'}, {blur}) "
         f"in {elapsed:.2f} s, {precision} → {output}" + (f", {plot}" if plot else "")
     )
