@@ -30,20 +30,13 @@ import pandas as pd
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
+from bench_render import SCENES  # noqa: E402
 from sbc_fit import pass_geometry  # noqa: E402
 from timing import timed  # noqa: E402
 
 import jaxlc  # noqa: E402
 from jaxlc.rendering.prepare import adapt, prepare  # noqa: E402
 from jaxlc.rendering.render import evaluate_instants  # noqa: E402
-
-SCENES = {
-    "S2": "s2_sphere",
-    "S3": "s3_cylinder",
-    "S4": "s4_falcon9",
-    "S5": "s5_cubesat",
-    "S6": "s6_boxwing",
-}
 
 
 def errors(mag, ref):

@@ -163,13 +163,14 @@ def fit_spin(
     period_ref = min(modes[i].period_s for i in sampled)
     runs, tables = {}, []
     for n, i in enumerate(sampled):
+        tolerance = blur_tolerance_mag(scene, data, modes[i])
         model = spin_model(
             scene,
             data,
             period_ref,
             exact=True,
             theta=modes[i].theta_lm,
-            tolerance_mag=blur_tolerance_mag(scene, data, modes[i]),
+            tolerance_mag=tolerance,
         )
         stage = f"emcee mode {n + 1}/{len(sampled)} (P {modes[i].period_s:.4g} s)"
         log(f"emcee around mode {i} (Δχ² = {modes[i].chi2 - best_chi2:.1f})")
@@ -187,7 +188,7 @@ def fit_spin(
             log(f"mode {i} left out: {exc}")
             continue
         runs[i]["instants_per_exposure"] = model.instants_per_exposure
-        runs[i]["blur_tolerance_mag"] = blur_tolerance_mag(scene, data, modes[i])
+        runs[i]["blur_tolerance_mag"] = tolerance
         tables.append(mcmc.samples_table(runs[i]["chain"], runs[i]["log_prob"], i))
     sampled = [i for i in sampled if i in runs]
     if not sampled:
