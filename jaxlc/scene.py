@@ -44,7 +44,7 @@ from jaxlc.body import attitude as att
 from jaxlc.body.brdf import BRDFS, AbstractBRDF
 from jaxlc.body.mesh import Facets, TriangleMesh, load_body
 from jaxlc.errors import SceneError
-from jaxlc.io.toml import Section, in_range, nonzero_vector, positive, read_toml, show
+from jaxlc.io.toml import Section, in_range, nonzero_vector, read_toml, show
 from jaxlc.io.utc import utc_timestamp
 from jaxlc.rendering.options import RenderOptions, render_options_from_table
 
@@ -222,7 +222,9 @@ def scene_from_dict(data: dict, source: str = "<dict>", base_dir: Path | None = 
         SceneError,
     )
     mesh = obj.get("mesh", str, what="path of a mesh file")
-    scale = obj.get("scale", float, default=1.0, check=positive)
+    scale = obj.get(
+        "scale", float, default=1.0, check=in_range(1e-6, 1e6), what="file units → m, 1e-6 … 1e6"
+    )
     obj.finish()
     mesh_path = resolve_file(mesh, base_dir, f"{source}: [object] mesh", SceneError, "meshes")
 
@@ -239,7 +241,9 @@ def scene_from_dict(data: dict, source: str = "<dict>", base_dir: Path | None = 
 
     attitude = _parse_attitude(top.get("attitude", dict, what="the [attitude] table"), source)
     sensor = Section(top.get("sensor", dict, default={}), f"{source}: [sensor]", SceneError)
-    exposure = sensor.get("exposure_s", float, default=1.0, check=positive, what="seconds")
+    exposure = sensor.get(
+        "exposure_s", float, default=1.0, check=in_range(*EXPOSURE_RANGE_S), what="seconds"
+    )
     sensor.finish()
     render_table = top.get("render", dict, default={})
     render = render_options_from_table(Section(render_table, f"{source}: [render]", SceneError))
@@ -277,6 +281,11 @@ def resolve_file(
     raise error(f"{where} = {name!r} not found (looked in: {tried})")
 
 
+#: Spin periods a scene may give (s): 1 ms (1,000 turns per second) to ~30 years.
+PERIOD_RANGE_S = (1e-3, 1e9)
+#: Exposure times a scene may give (s): 1 µs to one hour.
+EXPOSURE_RANGE_S = (1e-6, 3600.0)
+_PERIOD = "spin period in seconds, 0.001 … 1e9"
 _ALBEDO = "reflectance, 0 … 1"
 _EXPONENT = "AS exponent, 0 … 1e6"
 
@@ -301,6 +310,12 @@ def _parse_material(entry, where) -> MaterialSpec:
             check=nonzero_vector,
             what="body-frame direction of the u tangent",
         )
+        if name == "as-glossy" and rd + rs > 1.0:
+            raise SceneError(
+                f"{where}: rd + rs = {rd:g} + {rs:g} > 1 reflects more light than it receives "
+                "(as-glossy adds a Lambert term rd and a lobe of albedo ≤ rs); lower them so "
+                "that rd + rs ≤ 1"
+            )
         brdf = BRDFS[name](rd=rd, rs=rs, nu=nu, nv=nv, tangent=tuple(float(x) for x in tangent))
     sec.finish()
     return MaterialSpec(part=part, brdf=brdf)
@@ -327,8 +342,8 @@ def _parse_attitude(table, source) -> AttitudeSpec:
         )
         ra = sec.get("pole_ra_deg", float, check=in_range(-360.0, 360.0), what="degrees")
         dec = sec.get("pole_dec_deg", float, check=in_range(-90.0, 90.0), what="degrees")
-        period = sec.get("period_s", float, check=positive, what="spin period in seconds")
-        phase = sec.get("phase_deg", float, default=0.0, what="degrees")
+        period = sec.get("period_s", float, check=in_range(*PERIOD_RANGE_S), what=_PERIOD)
+        phase = sec.get("phase_deg", float, default=0.0, check=in_range(-1e6, 1e6), what="degrees")
         epoch = sec.get("epoch_utc", str, default=None, what="ISO 8601 UTC")
         spec = AttitudeSpec(
             model="spin",

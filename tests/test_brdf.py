@@ -292,3 +292,34 @@ def test_lobe_logarithm_against_numpy():
     # gradients of the lobe flow through it (reverse mode, float32)
     g = jax.grad(lambda x: jnp.sum(log1m(x)))(jnp.asarray([1e-6, 0.3, 0.9], jnp.float32))
     np.testing.assert_allclose(np.asarray(g), -1 / (1 - np.array([1e-6, 0.3, 0.9])), rtol=1e-5)
+
+
+def _albedo(plate_facets, brdf, incidence_deg, n_theta=160, n_phi=320):
+    """Directional-hemispherical reflectance ∫ ρ (n·v) dω of the plate's front face (its
+    I/E over (A n·s) with A = 1 m²), by the midpoint rule over the upper hemisphere."""
+    th = (np.arange(n_theta) + 0.5) * (math.pi / 2) / n_theta
+    ph = (np.arange(n_phi) + 0.5) * 2 * math.pi / n_phi
+    T, P = np.meshgrid(th, ph, indexing="ij")
+    v = np.stack([np.sin(T) * np.cos(P), np.sin(T) * np.sin(P), np.cos(T)], -1).reshape(-1, 3)
+    a = math.radians(incidence_deg)
+    s = np.broadcast_to([math.sin(a), 0.0, math.cos(a)], v.shape)
+    got = _intensity64(lambda dt: facet_model(plate_facets, [brdf], dt), s, v)
+    d_omega = (np.sin(T) * (math.pi / 2 / n_theta) * (2 * math.pi / n_phi)).reshape(-1)
+    return float(np.sum(got / math.cos(a) * d_omega))
+
+
+@pytest.mark.parametrize("nu", [0.0, 1.0, 10.0, 300.0])
+def test_allowed_materials_reflect_at_most_what_they_receive(plate_facets, nu):
+    """Energy: every parameter set a scene may give reflects ≤ the incident light
+    (AS: rd, rs ∈ [0, 1], any exponent; as-glossy: rd + rs ≤ 1), while as-glossy with
+    rd = rs = 1, which scenes refuse, reflects more."""
+    for incidence in (0.0, 45.0, 75.0):
+        for rd, rs in ((1.0, 0.0), (1.0, 0.5), (1.0, 1.0)):
+            albedo = _albedo(plate_facets, AshikhminShirley(rd=rd, rs=rs, nu=nu, nv=nu), incidence)
+            assert albedo <= 1.005, (rd, rs, nu, incidence, albedo)
+        for rd, rs in ((1.0, 0.0), (0.5, 0.5), (0.0, 1.0)):
+            albedo = _albedo(plate_facets, ASGlossy(rd=rd, rs=rs, nu=nu, nv=nu), incidence)
+            assert albedo <= 1.005, (rd, rs, nu, incidence, albedo)
+    # Lambert rd/π integrates to rd exactly: the quadrature is right
+    assert _albedo(plate_facets, Lambert(rd=1.0), 30.0) == pytest.approx(1.0, abs=2e-4)
+    assert _albedo(plate_facets, ASGlossy(rd=1.0, rs=1.0, nu=nu, nv=nu), 0.0) > 1.1

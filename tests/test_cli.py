@@ -66,7 +66,10 @@ def test_float64_option(tmp_path):
             ["render", "nope.toml", "geo.csv", "-o", "out.csv"],
             "scene file 'nope.toml' does not exist",
         ),
-        (["render", "bad.toml", "geo.csv", "-o", "out.csv"], "period_s = -1.0 must be > 0"),
+        (
+            ["render", "bad.toml", "geo.csv", "-o", "out.csv"],
+            "period_s = -1.0 is outside [0.001, 1e+09]",
+        ),
         (
             ["render", "@S5", "missing.csv", "-o", "out.csv"],
             "table file 'missing.csv' does not exist",

@@ -9,9 +9,19 @@ import pytest
 import trimesh
 from helpers import MESHES, random_unit_vectors
 
+from jaxlc.body import mesh as mesh_module
 from jaxlc.body.brdf import AshikhminShirley, Lambert
 from jaxlc.body.facet_model import facet_intensity, facet_model, tangent_frame
-from jaxlc.body.mesh import MeshWarning, TriangleMesh, facets_from_mesh, load_mesh
+from jaxlc.body.hull import support_heights
+from jaxlc.body.mesh import (
+    MAX_TRIANGLES,
+    SHADOW_TOLERANCE,
+    MeshWarning,
+    TriangleMesh,
+    facets_from_mesh,
+    load_mesh,
+)
+from jaxlc.body.planes import COPLANAR_TOLERANCE, coplanar_groups
 from jaxlc.errors import MeshError
 
 SHIPPED = {
@@ -184,3 +194,131 @@ def test_lambert_facet_model_total_area():
     f = facets_from_mesh(load_mesh(MESHES / "falcon9_upper_stage.obj"))
     model = facet_model(f, [Lambert(rd=0.7)] * 4, jnp.float32)
     assert float(jnp.sum(model.kl)) == pytest.approx(0.7 / np.pi * f.areas_m2.sum(), rel=1e-5)
+
+
+# ---------------------------------------------------------------------------
+# Hostile files and size limits
+
+
+def test_binary_obj_is_refused_as_not_text(tmp_path):
+    """Random bytes named .obj: one line naming the file, what it is not and what is read."""
+    bad = tmp_path / "noise.obj"
+    bad.write_bytes(np.random.default_rng(0).integers(0, 256, 20_000, dtype=np.uint8).tobytes())
+    with pytest.raises(MeshError) as err:
+        load_mesh(bad)
+    msg = str(err.value)
+    assert "noise.obj" in msg and "not a text OBJ mesh" in msg and "STL, PLY, GLB" in msg
+    assert "\n" not in msg and "charset" not in msg
+
+
+def test_missing_optional_module_is_named_with_the_install_hint(tmp_path, monkeypatch):
+    path = tmp_path / "box.obj"
+    trimesh.creation.box((1, 1, 1)).export(path)
+
+    def load(*args, **kwargs):
+        raise ModuleNotFoundError("No module named 'charset_normalizer'", name="charset_normalizer")
+
+    monkeypatch.setattr(trimesh, "load", load)
+    with pytest.raises(
+        MeshError,
+        match=r"missing dependency.*'charset_normalizer'.*"
+        r"pip install charset-normalizer",
+    ):
+        load_mesh(path)
+
+
+def test_face_limit(tmp_path):
+    """Above the limit: a MeshError naming the file, the count and the limit, for an OBJ
+    before it is parsed and for any other format after; at the limit, fine."""
+    box = trimesh.creation.box((1, 1, 1))  # 12 triangles
+    obj, stl = tmp_path / "box.obj", tmp_path / "box.stl"
+    box.export(obj)
+    box.export(stl)
+    with pytest.raises(
+        MeshError, match=r"box\.obj' has at least 12 faces, more than the limit of 11"
+    ):
+        load_mesh(obj, max_triangles=11)
+    with pytest.raises(MeshError, match=r"box\.stl' has 12 triangles, more than the limit of 11"):
+        load_mesh(stl, max_triangles=11)
+    assert load_mesh(stl, max_triangles=12).n_triangles == 12
+    assert f"{MAX_TRIANGLES:,}" in mesh_module.__doc__  # documented
+
+
+# ---------------------------------------------------------------------------
+# Fast set-up against its slow twins
+
+
+def _all_pairs_groups(normals, centroids, part, diag):
+    """Coplanar groups by linking every pair of keys within the tolerance (the old way)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    key = np.column_stack([normals, np.einsum("ij,ij->i", normals, centroids) / diag, part * 10.0])
+    pairs = cKDTree(key).query_pairs(r=COPLANAR_TOLERANCE, output_type="ndarray")
+    n = len(normals)
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    return connected_components(graph, directed=False)[1]
+
+
+def _triangle_keys(mesh):
+    tri = mesh.vertices_m[mesh.faces]
+    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    diag = float(np.linalg.norm(np.ptp(mesh.vertices_m, axis=0)))
+    return cross / np.linalg.norm(cross, axis=1, keepdims=True), tri.mean(1), diag
+
+
+def _noisy_subdivided_falcon(digits=8, times=2):
+    """The S4 mesh subdivided and its coordinates rounded, as exporters do: many
+    triangles per plane, their normals scattered within the merging tolerance
+    (8 digits: 35,200 distinct planes merge into S4's 1,205) or across it (6)."""
+    mesh = load_mesh(MESHES / "falcon9_upper_stage.obj")
+    v, f, part = mesh.vertices_m, mesh.faces, mesh.face_part
+    for _ in range(times):
+        v, f = trimesh.remesh.subdivide(v, f)
+        part = np.repeat(part, 4)  # face i becomes faces 4i … 4i + 3
+    return TriangleMesh(np.round(v, digits), f, part, mesh.part_names, "noisy")
+
+
+@pytest.mark.parametrize("name", [*sorted(SHIPPED), "noisy-6", "noisy-8"])
+def test_coplanar_groups_equal_all_pairs(name):
+    if name.startswith("noisy"):
+        mesh = _noisy_subdivided_falcon(digits=int(name[-1]))
+    else:
+        mesh = load_mesh(MESHES / name)
+    normals, centroids, diag = _triangle_keys(mesh)
+    fast = coplanar_groups(normals, centroids, mesh.face_part, diag)
+    slow = _all_pairs_groups(normals, centroids, mesh.face_part, diag)
+    # the same partition, numbered by first triangle
+    _, first = np.unique(slow, return_index=True)
+    rank = np.empty(len(first), np.int64)
+    rank[np.argsort(first)] = np.arange(len(first))
+    np.testing.assert_array_equal(fast, rank[slow])
+
+
+@pytest.mark.parametrize("name", [*sorted(SHIPPED), "cloud", "flat", "noisy"])
+def test_support_heights_equal_brute_force(name):
+    rng = np.random.default_rng(3)
+    if name == "cloud":
+        points = rng.normal(size=(3000, 3)) * [1.0, 2.0, 0.5]
+    elif name == "flat":  # a plate: Qhull needs its joggle
+        points = np.column_stack([rng.normal(size=(2000, 2)), np.zeros(2000)])
+    elif name == "noisy":
+        points = _noisy_subdivided_falcon().vertices_m
+    else:
+        points = load_mesh(MESHES / name).vertices_m
+    d = random_unit_vectors(rng, 3000)
+    np.testing.assert_allclose(
+        support_heights(points, d), (points @ d.T).max(axis=0), rtol=0, atol=1e-12
+    )
+
+
+def test_can_shadow_equals_brute_force_on_a_noisy_mesh():
+    mesh = _noisy_subdivided_falcon(digits=6, times=1)
+    f = facets_from_mesh(mesh)
+    diag = float(np.linalg.norm(np.ptp(mesh.vertices_m, axis=0)))
+    height = (mesh.vertices_m @ f.normals.T).max(0) - np.einsum(
+        "ij,ij->i", f.normals, f.centroids_m
+    )
+    np.testing.assert_array_equal(f.can_shadow, height > SHADOW_TOLERANCE * diag)
+    assert 0 < f.can_shadow.sum() < f.n_facets

@@ -16,7 +16,7 @@ from helpers import DATA
 
 import jaxlc
 from jaxlc.errors import JaxlcError
-from jaxlc.geometry import ephemeris
+from jaxlc.geometry import ephemeris, observe
 from jaxlc.geometry.eclipse import R_EARTH_M, shadow_nu
 from jaxlc.geometry.observe import (
     Visibility,
@@ -203,8 +203,6 @@ def test_visibility_agrees_with_skyfield_rules(falcon):
 
 def test_passes_split_across_time_chunks_are_merged(falcon, monkeypatch):
     """The same passes whatever the chunk size (a pass spanning chunks is one pass)."""
-    import jaxlc.geometry.observe as observe
-
     tle, site = falcon[45921], get_site("mt-stromlo")
     t0 = pd.Timestamp("2020-08-10T00:00:00Z")
     whole = find_passes([tle], site, t0, 86400.0, 5.0)
@@ -300,3 +298,61 @@ def test_bad_rules_and_durations(falcon):
         geometry_table(falcon[45921], get_site("mt-stromlo"), pd.Timestamp("2020-08-10"), -5.0)
     with pytest.raises(JaxlcError, match="step"):
         geometry_table(falcon[45921], get_site("mt-stromlo"), pd.Timestamp("2020-08-10"), 5.0, 0.0)
+
+
+@pytest.mark.parametrize(
+    ("duration_s", "step_s", "message"),
+    [
+        (np.nan, 1.0, r"window length nan s must be > 0 \(--duration-s or --days\)"),
+        (60.0, np.inf, r"step inf s must be > 0 \(--step-s\)"),
+        (1e12, 1.0, r"1e\+12 samples; at most 1,000,000 are allowed \(memory and time\)"),
+        (1e300, 1e-300, r"is inf samples; at most 1,000,000"),  # no integer overflow
+        (1e12, 1e7, r"2020-08-10 … 2053-10-09 are outside the ephemeris"),  # no Timedelta overflow
+    ],
+)
+def test_windows_are_bounded_before_any_work(falcon, duration_s, step_s, message):
+    start = pd.Timestamp("2020-08-10T00:00:00Z")
+    with pytest.raises(JaxlcError, match=message):
+        geometry_table(falcon[45921], get_site("mt-stromlo"), start, duration_s, step_s)
+
+
+def test_pass_search_limit_is_larger_than_table_limit(falcon):
+    assert observe.check_window(86400.0 * 100, 1.0, observe.MAX_SEARCH_SAMPLES) == 8_640_000
+    with pytest.raises(JaxlcError, match="at most 10,000,000"):
+        find_passes([falcon[45921]], get_site("mt-stromlo"), pd.Timestamp("2020-08-10"), 2e7)
+
+
+def test_chunks_shrink_with_the_number_of_objects(falcon, monkeypatch):
+    """Memory per chunk is bounded by objects × samples, not by samples alone."""
+    monkeypatch.setattr(observe, "CHUNK_CELLS", 300)
+    chunks = list(
+        observe.observe_chunks(
+            list(falcon.values()),
+            get_site("mt-stromlo"),
+            pd.Timestamp("2020-08-10T18:00:00Z"),
+            250.0,
+            1.0,
+            Visibility(),
+        )
+    )
+    assert [len(c.offsets_s) for c in chunks] == [100, 100, 50]
+    assert chunks[0].rso_m.shape == (3, 100, 3)
+
+
+def test_passes_carry_tle_age_and_stale_mark(falcon):
+    """The 2016 set of 41381 is ~1,600 days old in 2020; 45921's set is 1–3 days old."""
+    start = pd.Timestamp("2020-08-10T00:00:00Z")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        passes = find_passes(
+            [falcon[41381], falcon[45921]], get_site("mt-stromlo"), start, 86400.0, 30.0
+        )
+    assert list(passes.columns) == list(observe.PASS_COLUMNS)
+    old, fresh = passes[passes.norad_id == 41381], passes[passes.norad_id == 45921]
+    assert len(old) and len(fresh)
+    assert old["stale"].all() and (old["tle_age_days"] > 1590).all()
+    assert not fresh["stale"].any() and fresh["tle_age_days"].between(1.0, 2.5).all()
+    for row in passes.itertuples():  # |pass start − epoch|
+        epoch = falcon[row.norad_id].epoch_utc
+        age = abs((pd.Timestamp(row.start_utc) - epoch).total_seconds()) / 86400.0
+        assert row.tle_age_days == pytest.approx(age, abs=1e-3)

@@ -3,24 +3,34 @@ and every skip against the full computation."""
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from helpers import DATA, REPO, SCENES, random_unit_vectors, unit
+from helpers import DATA, MESHES, REPO, SCENES, random_unit_vectors, unit
 
 import jaxlc
+from jaxlc.body import raycast
+from jaxlc.body import shadow as shadow_module
 from jaxlc.body.mesh import TriangleMesh, facets_from_mesh
+from jaxlc.body.occlusion import Occluders, hits, plane_basis
 from jaxlc.body.octahedral import (
     grid_corners,
     nearest_node,
     octahedral_directions,
     octahedral_encode,
 )
-from jaxlc.body.raycast import sub_points
-from jaxlc.body.shadow import ShadowSettings, shadow_data, shadow_table
+from jaxlc.body.raycast import sub_points, word_layout
+from jaxlc.body.shadow import (
+    ShadowSettings,
+    lit_seen_fraction,
+    reduced_resolution,
+    shadow_data,
+    shadow_table,
+)
 from jaxlc.body.shadow_exact import ExactShadows
 from jaxlc.rendering.kernel import body_intensity
 from jaxlc.rendering.options import RenderOptions
@@ -213,11 +223,173 @@ def test_sub_points_lie_on_their_facets():
     mesh, f = jaxlc.load_mesh(scene.mesh_path), scene.facets
     ids = np.flatnonzero(f.can_shadow)
     counts = 32 * ShadowSettings().words_per_facet(f.areas_m2[ids], 11.9)
-    pts = sub_points(mesh, f, ids, counts)
+    pts = np.split(sub_points(mesh, f, ids, counts), np.cumsum(counts)[:-1])
     for fid, p, k in zip(ids, pts, counts, strict=True):
         assert len(p) == k
         np.testing.assert_allclose((p - f.centroids_m[fid]) @ f.normals[fid], 0.0, atol=1e-9)
     assert counts.max() > 32 and counts.min() == 32  # big panels get more points
+
+
+def _halton(i, base):
+    """Van der Corput: the digits of i in ``base`` mirrored about the point."""
+    out = np.zeros(len(i))
+    for n, k in enumerate(i):
+        f = 1.0
+        while k > 0:
+            f /= base
+            out[n] += f * (k % base)
+            k //= base
+    return out
+
+
+def _sub_points_loop(mesh, facets, facet_ids, counts):
+    """The slow twin of sub_points: facet by facet (ties of the remainders to the
+    earlier triangle)."""
+    tri = mesh.vertices_m[mesh.faces]
+    out = []
+    for f, k in zip(facet_ids, counts, strict=True):
+        t = tri[facets.triangle_facet == f]
+        area = 0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
+        share = k * area / area.sum()
+        count = np.floor(share).astype(int)
+        count[np.argsort(-(share - count), kind="stable")[: k - count.sum()]] += 1
+        for tt, c in zip(t, count, strict=True):
+            i = np.arange(1, c + 1)
+            r1, r2 = _halton(i, 2), _halton(i, 3)
+            fold = r1 + r2 > 1
+            r1, r2 = np.where(fold, 1 - r1, r1), np.where(fold, 1 - r2, r2)
+            out.append(tt[0] + r1[:, None] * (tt[1] - tt[0]) + r2[:, None] * (tt[2] - tt[0]))
+    return np.concatenate(out)
+
+
+@pytest.mark.parametrize("name", ["s6_boxwing", "s4_falcon9"])
+def test_sub_points_equal_the_facet_by_facet_loop(name):
+    scene = jaxlc.load_scene(SCENES / f"{name}.toml")
+    mesh, f = scene.body
+    ids = np.flatnonzero(f.can_shadow)
+    rng = np.random.default_rng(5)
+    for counts in (
+        32 * ShadowSettings().words_per_facet(f.areas_m2[ids], 11.9),
+        rng.choice([1, 2, 4, 8, 16, 32, 96], size=len(ids)),
+    ):
+        np.testing.assert_array_equal(
+            sub_points(mesh, f, ids, counts), _sub_points_loop(mesh, f, ids, counts)
+        )
+
+
+def _all_pairs_occluded(points, occluders, d, eps):
+    """The slow twin of the binned cast: every (point, triangle) pair, same projection."""
+    basis = plane_basis(d).astype(np.float32)
+    keep = (
+        np.flatnonzero(occluders.normals @ basis[2] < 0)
+        if occluders.cull_back
+        else np.arange(len(occluders.normals))
+    )
+    a, b, h = zip(*[basis @ c[:, keep] for c in occluders.corners], strict=True)
+    pa, pb, ph = basis @ points
+    p, t = np.repeat(np.arange(len(pa)), len(keep)), np.tile(np.arange(len(keep)), len(pa))
+    hit = hits(pa[p], pb[p], ph[p] + np.float32(eps), a, b, h, t)
+    return np.bincount(p[hit], minlength=len(pa)) > 0
+
+
+@pytest.mark.parametrize(
+    ("name", "cull_back"), [("boxwing", False), ("falcon9_upper_stage", True), ("soup", False)]
+)
+def test_binned_occlusion_equals_all_pairs(name, cull_back):
+    """Sub-points of shadowable facets (random points for the soup) against every
+    triangle, along 12 directions: the binned cast finds exactly the same hits."""
+    rng = np.random.default_rng(11)
+    if name == "soup":  # 300 random triangles of very different sizes, crossing each other
+        centre = rng.uniform(-1, 1, (300, 1, 3))
+        tris = centre + rng.normal(size=(300, 3, 3)) * rng.choice([0.02, 0.2, 1.0], (300, 1, 1))
+        points = rng.uniform(-1.2, 1.2, (4000, 3))
+    else:
+        mesh = jaxlc.load_mesh(MESHES / f"{name}.obj")
+        f = facets_from_mesh(mesh)
+        ids = np.flatnonzero(f.can_shadow)
+        counts = 32 * ShadowSettings().words_per_facet(f.areas_m2[ids], 11.9)
+        owner = np.repeat(ids, counts)
+        points = sub_points(mesh, f, ids, counts) + 1e-4 * f.normals[owner]
+        points = points[rng.permutation(len(points))[:3000]]
+        tris = mesh.vertices_m[mesh.faces]
+    occluders = Occluders(tris, cull_back)
+    points_t = np.ascontiguousarray(points.T, dtype=np.float32)
+    blocked = 0
+    for d in random_unit_vectors(rng, 12):
+        fast = occluders.occluded(points_t, d, 1e-5)
+        np.testing.assert_array_equal(fast, _all_pairs_occluded(points_t, occluders, d, 1e-5))
+        blocked += fast.sum()
+    assert 0.05 < blocked / (12 * len(points)) < 0.95  # both outcomes are exercised
+
+
+def test_shared_words_fraction_equals_unpacked_bits(monkeypatch):
+    """A mesh over the budget gets 1–16 sub-points per facet, several facets to a
+    word: the kernel's fractions equal counting the unpacked bits facet by facet."""
+    monkeypatch.setattr(shadow_module, "SUBPOINT_BUDGET", 200)
+    scene = jaxlc.load_scene(SCENES / "s6_boxwing.toml")
+    mesh, f = scene.body
+    data = shadow_data(mesh, f, ShadowSettings(grid=8), use_cache=False)
+    assert data.subpoints <= 200 and data.counts.min() < 32 and len(data.groups) > 1
+    rng = np.random.default_rng(2)
+    s, v = random_unit_vectors(rng, 64), random_unit_vectors(rng, 64)
+    table = shadow_table(dataclasses.replace(data, key=""), jnp.float32)
+    fast = np.asarray(
+        lit_seen_fraction(table, jnp.asarray(s, jnp.float32), jnp.asarray(v, jnp.float32))
+    )
+
+    start, _ = word_layout(data.counts)
+    bits = np.unpackbits(data.bits.view(np.uint8), axis=1, bitorder="little").astype(bool)
+    slow = np.zeros_like(fast)
+    idx_s, w_s = (np.asarray(x) for x in grid_corners(jnp.asarray(s), 8))
+    idx_v, w_v = (np.asarray(x) for x in grid_corners(jnp.asarray(v), 8))
+    for i, (first, k) in enumerate(zip(start, data.counts, strict=True)):
+        own = bits[:, first : first + k]  # (D, k) this facet's sub-points
+        both = own[idx_s][:, :, None, :] & own[idx_v][:, None, :, :]  # (T, 4, 4, k)
+        slow[:, i] = np.einsum("ta,tb,tab->t", w_s, w_v, both.sum(-1)) / k
+    np.testing.assert_allclose(fast, slow, atol=2e-6)
+
+
+def test_budgets_reduce_the_resolution_and_the_plan_says_so(monkeypatch):
+    monkeypatch.setattr(shadow_module, "SUBPOINT_BUDGET", 200)
+    monkeypatch.setattr(shadow_module, "TRACE_BUDGET", 400 * 16**2)
+    scene = jaxlc.load_scene(SCENES / "s6_boxwing.toml")
+    mesh, f = scene.body
+    asked = ShadowSettings(grid=32)
+    note = reduced_resolution(mesh, f, asked)
+    data = shadow_data(mesh, f, asked, use_cache=False)
+    assert data.subpoints <= 200 and data.settings.grid < 32
+    assert data.settings.grid**2 * (data.subpoints + 2 * 52) <= 400 * 16**2
+    assert note.startswith(f"; REDUCED for a mesh this large: {data.settings.grid}×")
+    geo = jaxlc.synthetic_geometry(duration_s=20)
+    lc = jaxlc.render(scene, geo, options=RenderOptions(blur="off"))
+    assert "REDUCED" in lc.attrs["plan"] and np.all(np.isfinite(lc["flux_w_m2"]))
+    monkeypatch.undo()
+    assert reduced_resolution(mesh, f, asked) == ""  # the shipped meshes are far below both
+
+
+def test_mirroring_near_the_horizon_only_renders_alike(monkeypatch):
+    """Bits below a facet's horizon are filled only within reach of an interpolation
+    from above it; filling them all (as before) gives the same lit-and-seen fractions
+    wherever the facet is lit and seen."""
+    scene = jaxlc.load_scene(SCENES / "s6_boxwing.toml")
+    mesh, f = scene.body
+    near = shadow_data(mesh, f, ShadowSettings(grid=12), use_cache=False)
+    monkeypatch.setattr(raycast, "node_spacing_rad", lambda grid: np.pi)
+    every = shadow_data(mesh, f, ShadowSettings(grid=12), use_cache=False)
+    assert not np.array_equal(near.bits, every.bits)
+    rng = np.random.default_rng(4)
+    s, v = random_unit_vectors(rng, 2000), random_unit_vectors(rng, 2000)
+    fr = [
+        np.asarray(
+            lit_seen_fraction(
+                shadow_table(dataclasses.replace(d, key="")), jnp.asarray(s), jnp.asarray(v)
+            )
+        )
+        for d in (near, every)
+    ]
+    n = f.normals[near.facet_ids]
+    both = (s @ n.T > 0) & (v @ n.T > 0)
+    np.testing.assert_array_equal(fr[0][both], fr[1][both])
 
 
 def test_cache_reuse_and_invalidation(cache):

@@ -9,6 +9,7 @@ import pytest
 from helpers import DATA
 
 from jaxlc.geometry.tle import (
+    STALE_EPOCH_DAYS,
     TLEError,
     TLEWarning,
     checksum,
@@ -114,15 +115,114 @@ def test_checksum_warning_mode():
     assert t.norad_id == 25544
 
 
+def _columns(line: str, first: int, last: int, text: str) -> str:
+    """``line`` with columns first…last (1-based, inclusive) replaced, checksum fixed."""
+    assert len(text) == last - first + 1
+    return _fixed(line[: first - 1] + text + line[last:])
+
+
+@pytest.mark.parametrize(
+    ("lineno", "first", "last", "text", "message"),
+    [
+        (
+            1,
+            21,
+            32,
+            "999.51782528",
+            r"epoch day 999\.51782528 \(columns 21–32\) is outside "
+            r"1 … 366\.99999999 for 2008 \(a leap year\) \(line 2 of t\.tle\)",
+        ),
+        (1, 21, 32, "366.51782528", r"epoch day 366\.51782528 .* for 2009 \(not a leap year\)"),
+        (1, 21, 32, "000.51782528", r"epoch day 000\.51782528 .* outside 1 …"),
+        (1, 21, 32, "264.5178x528", r"'epoch day' \(columns 21–32\) is '264\.5178x528', not a"),
+        (1, 21, 32, "nan         ", r"'epoch day' .* is 'nan         ', not a number"),
+        (1, 19, 20, "0x", r"'epoch year' \(columns 19–20\) is '0x', not a number"),
+        (1, 34, 43, " .1e-00005", r"'first derivative of mean motion' .* not a number"),
+        (
+            1,
+            45,
+            52,
+            " 0000a-0",
+            r"'second derivative of mean motion' \(columns 45–52\) is ' 0000a-0'",
+        ),
+        (
+            1,
+            54,
+            61,
+            " 1x005-2",
+            r"'BSTAR drag term' \(columns 54–61\) is ' 1x005-2', not of the form",
+        ),
+        (1, 33, 33, "1", r"line 1 column 33 is '1', expected a blank between fields"),
+        (
+            2,
+            9,
+            16,
+            "181.0000",
+            r"'inclination' \(columns 9–16\) is 181\.0000, outside 0 … 180 "
+            r"\(line 3 of t\.tle\)",
+        ),
+        (2, 9, 16, " -1.0000", r"'inclination' .* is -1\.0000, outside 0 … 180"),
+        (2, 18, 25, "400.0000", r"'right ascension of the ascending node' .* outside 0 … 360"),
+        (2, 27, 33, "-006703", r"'eccentricity' \(columns 27–33\) is '-006703', not a number"),
+        (2, 27, 33, "0.06703", r"'eccentricity' .* is '0\.06703', not a number"),
+        (2, 35, 42, "361.0000", r"'argument of perigee' .* outside 0 … 360"),
+        (2, 44, 51, "     inf", r"'mean anomaly' .* is '     inf', not a number"),
+        (
+            2,
+            53,
+            63,
+            " 0.00000000",
+            r"'mean motion' \(columns 53–63\) is 0\.00000000 rev/day; "
+            r"it must be > 0",
+        ),
+        (2, 53, 63, "-1.72125391", r"'mean motion' .* is -1\.72125391 rev/day; it must be > 0"),
+        (2, 52, 52, "7", r"line 2 column 52 is '7', expected a blank"),
+        (2, 53, 63, " 1673912024", r"'mean motion' .* is ' 1673912024', not a number"),
+    ],
+)
+def test_fields_sgp4_would_misread_are_refused(lineno, first, last, text, message):
+    """Each of these reaches SGP4 as another orbit (or as inf) if not caught."""
+    lines = list(ISS)
+    if "2009" in message:
+        lines[1] = _columns(lines[1], 19, 20, "09")
+    lines[lineno] = _columns(lines[lineno], first, last, text)
+    with pytest.raises(TLEError, match=message) as info:
+        parse_tles("\n".join(lines) + "\n", source="/x/t.tle")
+    assert "get the element set again" in str(info.value)
+
+
+@pytest.mark.parametrize(
+    ("year", "day", "epoch"),
+    [
+        ("20", "366.50000000", "2020-12-31T12:00:00Z"),  # leap year: day 366 exists
+        ("21", "365.99999999", "2021-12-31T23:59:59.999136Z"),
+        ("57", "001.00000000", "1957-01-01T00:00:00Z"),  # 57 → 1957, 56 → 2056
+        ("56", "001.00000000", "2056-01-01T00:00:00Z"),
+    ],
+)
+def test_epoch_day_limits_accepted(year, day, epoch):
+    line1 = _columns(_columns(ISS[1], 19, 20, year), 21, 32, day)
+    (t,) = parse_tles(f"{line1}\n{ISS[2]}\n")
+    assert abs((t.epoch_utc - pd.Timestamp(epoch)).total_seconds()) < 1e-3
+
+
 def test_file_errors(tmp_path):
     with pytest.raises(TLEError, match="does not exist"):
         read_tles(tmp_path / "none.tle")
-    (tmp_path / "empty.tle").write_text("\n# just a comment\n")
-    with pytest.raises(TLEError, match="no TLE found"):
+    with pytest.raises(TLEError, match="is a folder; give the TLE file inside it"):
+        read_tles(tmp_path)
+    (tmp_path / "empty.tle").write_text("")
+    with pytest.raises(TLEError, match=r"empty\.tle is empty: expected pairs of 69-character"):
         read_tles(tmp_path / "empty.tle")
+    (tmp_path / "comment.tle").write_text("\n# just a comment\n")
+    with pytest.raises(TLEError, match=r"comment\.tle holds no TLE"):
+        read_tles(tmp_path / "comment.tle")
     (tmp_path / "bin.tle").write_bytes(b"\xff\xfe\x00binary")
-    with pytest.raises(TLEError, match="not a plain-text TLE file"):
+    with pytest.raises(TLEError, match=r"not a plain-text TLE file \(byte b'\\xff' at line 1\)"):
         read_tles(tmp_path / "bin.tle")
+    (tmp_path / "nul.tle").write_bytes(("\n".join(ISS) + "\n\x00\x00\n").encode())
+    with pytest.raises(TLEError, match=r"byte b'\\x00' at line 4"):
+        read_tles(tmp_path / "nul.tle")
 
 
 def test_select_by_norad_and_name():
@@ -132,7 +232,7 @@ def test_select_by_norad_and_name():
     assert {t.norad_id for t in select_objects(tles, names=["delfi"])} == {32789}
     with pytest.raises(TLEError, match="NORAD 1 is not in"):
         select_objects(tles, norad_ids=[1])
-    with pytest.raises(TLEError, match="no object named 'hubble'"):
+    with pytest.raises(TLEError, match=r"no object named 'hubble' .* or --norad"):
         select_objects(tles, names=["hubble"])
     with pytest.raises(TLEError, match="matches several objects"):
         select_objects(tles, names=["e"])
@@ -157,3 +257,17 @@ def test_stale_and_future_epoch_warnings():
     with pytest.warns(TLEWarning, match=r"window starts .* days before the first TLE epoch"):
         (pick,) = latest_before(history, pd.Timestamp("2016-07-01T00:00:00Z"))
     assert pick.epoch_utc == min(t.epoch_utc for t in history)
+    assert pick.age_days(pd.Timestamp("2016-07-01T00:00:00Z")) > STALE_EPOCH_DAYS
+    # within STALE_EPOCH_DAYS of an epoch, before or after it: no warning
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        first = min(t.epoch_utc for t in history)
+        latest_before(history, first - pd.Timedelta(days=STALE_EPOCH_DAYS - 1))
+        last = max(t.epoch_utc for t in history)
+        latest_before(history, last + pd.Timedelta(days=STALE_EPOCH_DAYS - 1))
+
+
+def test_window_before_the_first_satellite_is_refused():
+    history = read_tles(TLE_DIR / "falcon9_rb.tle")
+    with pytest.raises(TLEError, match=r"1950-01-01 00:00 UTC is before 1957-10-04, the launch"):
+        latest_before(history, pd.Timestamp("1950-01-01T00:00:00Z"))

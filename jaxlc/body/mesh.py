@@ -13,6 +13,12 @@ material. Facets are derived once per mesh on the host in float64:
    given normal), and records, per facet, whether any other geometry lies in
    front of its plane (``can_shadow``). A mesh with no such facet is convex and
    never shadows itself.
+
+Size limit: at most :data:`MAX_TRIANGLES` (2,000,000) triangles; :func:`load_mesh`
+refuses more with a :class:`MeshError` naming the file, its count and the limit
+(an OBJ file before it is parsed). Every step is O(F log F) in time and O(F) in
+memory (``experiments/big_mesh.py``); a large non-convex mesh's shadow table is
+sized by budgets (:mod:`jaxlc.body.shadow`).
 """
 
 from __future__ import annotations
@@ -24,6 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
+from jaxlc.body.hull import support_heights
+from jaxlc.body.planes import coplanar_groups
 from jaxlc.errors import MeshError
 
 
@@ -130,19 +138,31 @@ class Facets:
 # Reading
 
 
-def load_mesh(path: str | Path, scale: float = 1.0) -> TriangleMesh:
+#: Most triangles a mesh may have (the documented limit; see the module docstring).
+MAX_TRIANGLES = 2_000_000
+#: Text-only formats (binary data in one is refused) and what load_mesh reads.
+TEXT_FORMATS, ACCEPTED = {".obj": "OBJ", ".off": "OFF"}, "OBJ or OFF (text), STL, PLY, GLB/glTF"
+#: Bytes of text files (tab, newlines, form feed, printable and any UTF-8 byte).
+_TEXT_BYTES = bytes([9, 10, 11, 12, 13, *range(32, 127), *range(128, 256)])
+
+
+def load_mesh(
+    path: str | Path, scale: float = 1.0, max_triangles: int = MAX_TRIANGLES
+) -> TriangleMesh:
     """Read a mesh file into named parts.
 
     Args:
         path: any file trimesh reads (OBJ, STL, PLY, GLB/glTF, OFF, …).
         scale: multiply coordinates by this (e.g. 0.001 for a file in mm).
+        max_triangles: refuse meshes with more triangles than this.
 
     Returns:
         A :class:`TriangleMesh` with one part per object/group of the file; a
         file without names (STL, PLY) gives a single part called ``"body"``.
 
     Raises:
-        MeshError: the file is missing, unreadable or has no triangles.
+        MeshError: the file is missing, unreadable (binary data in a text format, a
+            missing optional module), has no triangles or more than ``max_triangles``.
     """
     import trimesh
 
@@ -151,6 +171,7 @@ def load_mesh(path: str | Path, scale: float = 1.0) -> TriangleMesh:
         raise MeshError(f"mesh file {str(path)!r} does not exist (check [object] mesh)")
     if not (np.isfinite(scale) and scale > 0):
         raise MeshError(f"mesh scale {scale!r} must be a positive number")
+    _check_text(path, max_triangles)
     try:
         loaded = trimesh.load(
             str(path),
@@ -160,12 +181,48 @@ def load_mesh(path: str | Path, scale: float = 1.0) -> TriangleMesh:
             group_material=False,
             maintain_order=True,
         )
+    except ImportError as exc:  # an optional module trimesh needs for this file
+        name = getattr(exc, "name", None) or str(exc)
+        raise MeshError(
+            f"cannot read mesh {str(path)!r}: missing dependency, the Python module {name!r}"
+            f" (install it with: pip install {name.replace('_', '-')})"
+        ) from exc
     except Exception as exc:  # trimesh raises many types; report them as one
         raise MeshError(f"cannot read mesh {str(path)!r}: {exc}") from exc
     mesh = mesh_from_trimesh(loaded, source=str(path))
+    if mesh.n_triangles > max_triangles:
+        raise _too_many(path, f"{mesh.n_triangles:,} triangles", max_triangles)
     if scale != 1.0:
         mesh = dataclasses.replace(mesh, vertices_m=mesh.vertices_m * float(scale))
     return mesh
+
+
+def _too_many(path, count: str, limit: int) -> MeshError:  # one message for both checks
+    return MeshError(
+        f"mesh {str(path)!r} has {count}, more than the limit of {limit:,} "
+        "(simplify it, e.g. by quadric decimation in Blender or MeshLab)"
+    )
+
+
+def _check_text(path: Path, max_triangles: int) -> None:
+    """Refuse binary data in a text format, and an OBJ with too many faces before parsing."""
+    kind = TEXT_FORMATS.get(path.suffix.lower())
+    if kind is None:
+        return
+    with open(path, "rb") as fh:
+        head = fh.read(1 << 16)
+    if b"\0" in head or len(head.translate(None, _TEXT_BYTES)) > 0.01 * len(head):
+        raise MeshError(
+            f"mesh file {str(path)!r} is not a text {kind} mesh (it holds binary data); "
+            f"jaxlc reads {ACCEPTED} files: check the file and its extension"
+        )
+    if kind == "OBJ":  # a scan of the bytes: far cheaper than parsing a file too big
+        faces = 0
+        with open(path, "rb") as fh:
+            for block in iter(lambda: fh.read(1 << 24), b""):
+                faces += block.count(b"\nf ")
+        if faces > max_triangles:
+            raise _too_many(path, f"at least {faces:,} faces", max_triangles)
 
 
 def mesh_from_trimesh(obj, source: str = "<memory>") -> TriangleMesh:
@@ -244,8 +301,6 @@ def _load_body(path: str, size: int, mtime_ns: int) -> tuple[TriangleMesh, Facet
 
 #: Triangles with area below this fraction of (bounding-box diagonal)² are degenerate.
 DEGENERATE_AREA_FRACTION = 1e-12
-#: Normals and plane offsets closer than this (relative) are the same plane.
-COPLANAR_TOLERANCE = 1e-6
 #: Geometry further in front of a facet's plane than this (relative to the
 #: bounding-box diagonal) can shadow it.
 SHADOW_TOLERANCE = 1e-7
@@ -302,7 +357,7 @@ def facets_from_mesh(mesh: TriangleMesh, merge: bool = True) -> Facets:
     part = mesh.face_part[idx].astype(np.int32)
 
     if merge:
-        group = _coplanar_groups(normals, centroids, part, diag)
+        group = coplanar_groups(normals, centroids, part, diag)
     else:
         group = np.arange(len(idx))
     n_f = int(group.max()) + 1
@@ -321,8 +376,9 @@ def facets_from_mesh(mesh: TriangleMesh, merge: bool = True) -> Facets:
     f_part = np.zeros(n_f, dtype=np.int32)
     f_part[group] = part
 
-    used_vertices = np.unique(mesh.faces[idx])
-    can_shadow = _can_be_shadowed(f_normal, f_centroid, v[used_vertices], diag)
+    used = np.zeros(len(v), dtype=bool)
+    used[mesh.faces[idx]] = True
+    can_shadow = _can_be_shadowed(f_normal, f_centroid, v[used], diag)
 
     triangle_facet = np.full(mesh.n_triangles, -1, dtype=np.int64)
     triangle_facet[idx] = group
@@ -340,39 +396,8 @@ def facets_from_mesh(mesh: TriangleMesh, merge: bool = True) -> Facets:
     )
 
 
-def _coplanar_groups(normals, centroids, part, diag) -> np.ndarray:
-    """Label triangles that share a part and a plane (normal and offset)."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-    from scipy.spatial import cKDTree
-
-    offset = np.einsum("ij,ij->i", normals, centroids) / diag
-    # Parts are kept apart by a large coordinate jump in a 5th dimension.
-    key = np.column_stack([normals, offset, part * 10.0])
-    pairs = cKDTree(key).query_pairs(r=COPLANAR_TOLERANCE, output_type="ndarray")
-    n = len(normals)
-    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
-    _, labels = connected_components(graph, directed=False)
-    return labels.astype(np.int64)
-
-
-def _can_be_shadowed(normals, centroids, vertices, diag, chunk=2048) -> np.ndarray:
-    """(F,) True where any vertex lies in front of the facet's plane.
-
-    Only convex-hull vertices can attain the maximum of n·x, so the test runs
-    over those.
-    """
-    try:
-        from scipy.spatial import ConvexHull
-
-        vertices = vertices[ConvexHull(vertices).vertices]
-    except Exception:  # flat or degenerate point sets: test all vertices
-        pass
-    out = np.empty(len(normals), dtype=bool)
-    tol = SHADOW_TOLERANCE * diag
-    for start in range(0, len(normals), chunk):
-        n = normals[start : start + chunk]
-        c = centroids[start : start + chunk]
-        height = vertices @ n.T - np.einsum("ij,ij->i", n, c)  # (V, chunk)
-        out[start : start + chunk] = height.max(axis=0) > tol
-    return out
+def _can_be_shadowed(normals, centroids, vertices, diag) -> np.ndarray:
+    """(F,) True where some vertex lies in front of the facet's plane
+    (:func:`jaxlc.body.hull.support_heights`: O(F log V), not F × V)."""
+    height = support_heights(vertices, normals) - np.einsum("ij,ij->i", normals, centroids)
+    return height > SHADOW_TOLERANCE * diag

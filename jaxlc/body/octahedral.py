@@ -62,3 +62,15 @@ def nearest_node(d: np.ndarray, n: int) -> np.ndarray:
     i = np.clip(np.round((u + 1.0) * (0.5 * n) - 0.5), 0, n - 1).astype(np.int64)
     j = np.clip(np.round((v + 1.0) * (0.5 * n) - 0.5), 0, n - 1).astype(np.int64)
     return i * n + j
+
+
+def node_spacing_rad(n: int) -> float:
+    """Largest angle (rad) between a node of the n × n grid and one of its 8 neighbours:
+    how far the corners of an interpolated look-up can lie from its direction."""
+    d = octahedral_directions(n).reshape(n, n, 3)
+    cos = 1.0
+    for (i, j), (k, m) in (((1, 0), (0, 0)), ((0, 1), (0, 0)), ((1, 1), (0, 0)), ((1, 0), (0, 1))):
+        x = d[i : n - 1 + i, j : n - 1 + j]
+        y = d[k : n - 1 + k, m : n - 1 + m]
+        cos = min(cos, float(np.min(np.sum(x * y, axis=-1))))
+    return float(np.arccos(np.clip(cos, -1.0, 1.0)))

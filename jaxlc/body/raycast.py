@@ -1,59 +1,76 @@
 """Self-shadowing precomputation: sub-points on facets and rays cast on the direction grid.
 
-Each facet that can be shadowed gets K = 32·W sub-points, spread over its
-triangles in proportion to area (stratified by a Halton sequence,
-deterministic). For every direction d of the octahedral grid
+Each facet that can be shadowed gets k sub-points (k = 1, 2, 4, 8, 16 or a
+multiple of 32), spread over its triangles in proportion to area (stratified by
+a Halton sequence, deterministic). For every direction d of the octahedral grid
 (:mod:`jaxlc.body.octahedral`) and every sub-point x, one bit says whether the
-ray x + t d escapes the mesh. Rays are cast once, in JAX, with 2-D edge
-functions and interpolated depth after projecting along d; only facets with
-n·d > 0 are traced, and for a watertight mesh only triangles with n_T·d < 0 (a
-ray leaving the surface can only hit the solid through a triangle facing it).
-The bits are packed into uint32 words (:func:`pack_bits`).
+ray x + t d escapes the mesh. Only sub-points of facets with n·d > 0 are
+traced, and for a watertight mesh only triangles with n_T·d < 0 (a ray leaving
+the surface can only hit the solid through a triangle facing it).
+
+Rays are cast on the host, one direction at a time, by
+:class:`jaxlc.body.occlusion.Occluders` (binned: O((P + M) log M) a direction,
+not P × M). The bits are packed into uint32 words (:func:`pack_bits`) in the
+layout of :func:`word_layout`.
 """
 
 from __future__ import annotations
 
-import jax
-import jax.numpy as jnp
+import os
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 
 from jaxlc.body.mesh import Facets, TriangleMesh
-from jaxlc.body.octahedral import nearest_node, octahedral_directions
-from jaxlc.xla import compiler_options
+from jaxlc.body.occlusion import Occluders
+from jaxlc.body.octahedral import nearest_node, node_spacing_rad, octahedral_directions
+
+#: Threads casting directions at once.
+THREADS = max(1, min(4, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else 2))
+#: Most (direction, facet) pairs of one block of the horizon fix-up.
+MIRROR_BLOCK = 1 << 22
 
 
 def sub_points(
     mesh: TriangleMesh, facets: Facets, facet_ids: np.ndarray, counts: np.ndarray
-) -> list[np.ndarray]:
-    """Per facet, ``counts[i]`` points (k, 3) spread over its triangles by area.
+) -> np.ndarray:
+    """(Σ counts, 3) points (m): ``counts[i]`` on facet ``facet_ids[i]``, facet by facet.
 
-    Each triangle gets its share (largest remainder); inside a triangle the
+    Each triangle of a facet gets its share of the facet's points by area
+    (largest remainder; ties to the earlier triangle); inside a triangle the
     points follow a 2-D Halton sequence folded into the triangle, so the
-    placement is stratified and reproducible.
+    placement is stratified and reproducible. All facets at once: O(M log M).
     """
-    tri = mesh.vertices_m[mesh.faces]
-    out = []
-    for f, k in zip(facet_ids, counts, strict=True):
-        t = tri[facets.triangle_facet == f]
-        area = 0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
-        share = k * area / area.sum()
-        count = np.floor(share).astype(int)
-        rest = np.argsort(-(share - count))[: k - count.sum()]
-        count[rest] += 1
-        pts = []
-        for tt, c in zip(t, count, strict=True):
-            if c:
-                r1, r2 = _halton(c, 2), _halton(c, 3)
-                fold = r1 + r2 > 1  # fold the unit square onto the triangle
-                r1, r2 = np.where(fold, 1 - r1, r1), np.where(fold, 1 - r2, r2)
-                pts.append(tt[0] + r1[:, None] * (tt[1] - tt[0]) + r2[:, None] * (tt[2] - tt[0]))
-        out.append(np.concatenate(pts))
-    return out
+    counts = np.asarray(counts, dtype=np.int64)
+    rank = np.full(facets.n_facets + 1, -1, dtype=np.int64)
+    rank[np.asarray(facet_ids)] = np.arange(len(facet_ids))
+    tri_rank = rank[facets.triangle_facet]  # −1: masked out (index −1) or not wanted
+    tri_ids = np.flatnonzero(tri_rank >= 0)
+    tri_ids = tri_ids[np.argsort(tri_rank[tri_ids], kind="stable")]  # by facet, then index
+    owner = tri_rank[tri_ids]
+    t = mesh.vertices_m[mesh.faces[tri_ids]]
+    area = 0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
+    first = np.searchsorted(owner, np.arange(len(facet_ids)))
+    share = counts[owner] * area / np.add.reduceat(area, first)[owner]
+    count = np.floor(share).astype(np.int64)
+    missing = counts - np.bincount(owner, weights=count, minlength=len(facet_ids)).astype(int)
+    by_rest = np.lexsort((np.arange(len(owner)), count - share, owner))
+    place = np.arange(len(owner)) - first[owner[by_rest]]  # rank of the remainder in its facet
+    count[by_rest[place < missing[owner[by_rest]]]] += 1
+
+    tri_of = np.repeat(np.arange(len(owner)), count)
+    k = np.arange(len(tri_of)) - np.repeat(np.cumsum(count) - count, count) + 1
+    r1, r2 = _halton(k, 2), _halton(k, 3)
+    fold = r1 + r2 > 1  # fold the unit square onto the triangle
+    r1, r2 = np.where(fold, 1 - r1, r1), np.where(fold, 1 - r2, r2)
+    tt = t[tri_of]
+    return tt[:, 0] + r1[:, None] * (tt[:, 1] - tt[:, 0]) + r2[:, None] * (tt[:, 2] - tt[:, 0])
 
 
-def _halton(n: int, base: int) -> np.ndarray:
-    i = np.arange(1, n + 1)
-    f, r = np.ones(n), np.zeros(n)
+def _halton(index: np.ndarray, base: int) -> np.ndarray:
+    """Element ``index`` (1, 2, …) of the van der Corput sequence in ``base``."""
+    i = np.array(index, dtype=np.int64)
+    f, r = np.ones(len(i)), np.zeros(len(i))
     while np.any(i > 0):
         f = f / base
         r = r + f * (i % base)
@@ -61,38 +78,28 @@ def _halton(n: int, base: int) -> np.ndarray:
     return r
 
 
+def word_layout(counts: np.ndarray) -> tuple[np.ndarray, int]:
+    """Where each facet's bits go: (first bit (F,), number of uint32 words).
+
+    ``counts`` (sub-points per facet) must be sorted. Facets with equal counts
+    form a run that starts at a word; a run of k < 32 packs 32/k facets into a
+    word (its last word padded with zero bits), k ≥ 32 gives each facet k/32
+    words of its own.
+    """
+    counts = np.asarray(counts, dtype=np.int64)
+    if np.any(np.diff(counts) < 0):
+        raise ValueError("word_layout: counts must be sorted")
+    first = np.flatnonzero(np.diff(counts, prepend=-1))
+    size = np.diff(np.append(first, len(counts)))
+    words = -(-size * counts[first] // 32)
+    run_start = 32 * (np.cumsum(words) - words)
+    run = np.repeat(np.arange(len(first)), size)
+    start = run_start[run] + (np.arange(len(counts)) - first[run]) * counts
+    return start, int(words.sum())
+
+
 # ---------------------------------------------------------------------------
 # Precomputation: ray casting on the grid
-
-
-def _occluded(points, tris, d, eps):
-    """(P,) True where the ray points + t·d (t > 0) hits one of tris (M, 3, 3)."""
-    helper = jnp.where(jnp.abs(d[0]) < 0.9, jnp.array([1.0, 0.0, 0.0]), jnp.array([0.0, 1.0, 0.0]))
-    e1 = jnp.cross(d, helper.astype(d.dtype))
-    e1 = e1 / jnp.linalg.norm(e1)
-    e2 = jnp.cross(d, e1)
-    pa, pb, ph = points @ e1, points @ e2, points @ d
-    ta, tb, th = tris @ e1, tris @ e2, tris @ d  # (M, 3)
-
-    def edge(i, j):  # edge function of the edge i → j at every point, (P, M)
-        return (tb[:, j] - tb[:, i])[None, :] * (pa[:, None] - ta[:, i][None, :]) - (
-            ta[:, j] - ta[:, i]
-        )[None, :] * (pb[:, None] - tb[:, i][None, :])
-
-    w0, w1, w2 = edge(1, 2), edge(2, 0), edge(0, 1)  # barycentric weights × 2·area
-    total = w0 + w1 + w2
-    inside = ((w0 >= 0) & (w1 >= 0) & (w2 >= 0)) | ((w0 <= 0) & (w1 <= 0) & (w2 <= 0))
-    inside = inside & (jnp.abs(total) > 1e-30)
-    depth = (w0 * th[None, :, 0] + w1 * th[None, :, 1] + w2 * th[None, :, 2]) / jnp.where(
-        inside, total, 1.0
-    )
-    return jnp.any(inside & (depth > ph[:, None] + eps), axis=1)
-
-
-@jax.jit
-def _occluded_batch(points, tris, dirs, eps):
-    """(B, P) occlusion for a batch of directions with their own points and triangles."""
-    return jax.lax.map(lambda a: _occluded(a[0], a[1], a[2], eps), (points, tris, dirs))
 
 
 def _is_watertight(mesh: TriangleMesh) -> bool:
@@ -107,72 +114,78 @@ def trace_visibility(
     mesh: TriangleMesh,
     facets: Facets,
     facet_ids: np.ndarray,
-    words: np.ndarray,
+    counts: np.ndarray,
     grid: int,
     progress=None,
 ) -> np.ndarray:
-    """Packed visibility (D, Σ words) uint32 of the sub-points of ``facet_ids``.
+    """Packed visibility (D, words) uint32 of the sub-points of ``facet_ids``.
 
-    Facet ``facet_ids[i]`` owns ``words[i]`` consecutive words (32 sub-points
-    each). Directions below a facet's plane take the bits of their mirror image
-    above it, so that interpolating near grazing does not mix in zeros (those
-    directions never light or show the facet, so nothing else changes).
+    Facet ``facet_ids[i]`` has ``counts[i]`` sub-points (sorted counts; bits
+    placed by :func:`word_layout`). Directions are cast in parallel threads
+    (numpy releases the GIL). Directions just below a facet's plane take the
+    bits of their mirror image above it (:func:`_mirror_below_horizon`).
     """
     dirs = octahedral_directions(grid)
-    n_dir = len(dirs)
     valid = facets.triangle_facet >= 0
-    tri = mesh.vertices_m[mesh.faces][valid]
-    tri_normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    tri_normal /= np.linalg.norm(tri_normal, axis=1, keepdims=True)
+    blockers = Occluders(mesh.vertices_m[mesh.faces[valid]], cull_back=_is_watertight(mesh))
     diag = float(np.linalg.norm(np.ptp(mesh.vertices_m, axis=0)))
     normals = facets.normals[facet_ids]
-    counts = 32 * np.asarray(words)
+    counts = np.asarray(counts, dtype=np.int64)
+    start, n_words = word_layout(counts)
     owner = np.repeat(np.arange(len(facet_ids)), counts)  # facet row of each sub-point
-    pts = np.concatenate(sub_points(mesh, facets, facet_ids, counts))
-    pts = pts + 1e-5 * diag * normals[owner]  # lift off the surface
-    cull_back = _is_watertight(mesh)
+    bit = np.arange(len(owner)) + np.repeat(start - (np.cumsum(counts) - counts), counts)
+    pts = sub_points(mesh, facets, facet_ids, counts)
+    pts += 1e-5 * diag * normals[owner]  # lift off the surface
+    pts_t = np.ascontiguousarray(pts.T, dtype=np.float32)
+    del pts
 
-    facing = dirs @ normals.T > 1e-9  # (D, F_s): directions above each facet
-    p_pad = max(32, int((facing @ counts).max()))
-    tri_ok = (dirs @ tri_normal.T < 0) if cull_back else np.ones((n_dir, len(tri)), bool)
-    m_pad = max(1, int(tri_ok.sum(1).max()))
+    def row(d):
+        facing = (normals @ d > 1e-9)[owner]  # sub-points above their facet's horizon
+        seen = np.zeros(32 * n_words, dtype=bool)
+        seen[bit[facing]] = ~blockers.occluded(pts_t, d, 1e-6 * diag, facing)[facing]
+        return pack_bits(seen.reshape(-1, 32)).ravel()
 
-    packed = np.zeros((n_dir, int(np.sum(words))), np.uint32)
-    batch = 16
-    kernel = jax.jit(_occluded_batch.__wrapped__, compiler_options=compiler_options())
-    eps = np.float32(1e-6 * diag)
-    for start in range(0, n_dir, batch):
-        ids = list(range(start, min(start + batch, n_dir)))
-        p_blk = np.zeros((batch, p_pad, 3), np.float32)
-        t_blk = np.zeros((batch, m_pad, 3, 3), np.float32)  # zero triangles: never hit
-        d_blk = np.tile(np.array([0.0, 0.0, 1.0], np.float32), (batch, 1))
-        chosen = []
-        for b, j in enumerate(ids):
-            sel = np.flatnonzero(facing[j][owner])
-            t = tri[tri_ok[j]]
-            p_blk[b, : len(sel)] = pts[sel]
-            t_blk[b, : len(t)] = t
-            d_blk[b] = dirs[j]
-            chosen.append(sel)
-        occ = np.asarray(kernel(jnp.asarray(p_blk), jnp.asarray(t_blk), jnp.asarray(d_blk), eps))
-        for b, (j, sel) in enumerate(zip(ids, chosen, strict=True)):
-            seen = np.zeros(len(pts), bool)
-            seen[sel] = ~occ[b, : len(sel)]
-            packed[j] = pack_bits(seen.reshape(-1, 32)).ravel()
-        if progress is not None:
-            progress(ids[-1] + 1, n_dir)
-
-    # Below each facet's horizon: the bits of the mirror direction above it.
-    first_word = np.concatenate([[0], np.cumsum(words)[:-1]])
-    for row, nrm in enumerate(normals):
-        below = ~facing[:, row]
-        if not below.any():
-            continue
-        d = dirs[below]
-        mirror = nearest_node(d - 2.0 * (d @ nrm)[:, None] * nrm, grid)
-        cols = slice(first_word[row], first_word[row] + words[row])
-        packed[below, cols] = packed[mirror, cols]
+    packed = np.zeros((len(dirs), n_words), np.uint32)
+    with ThreadPoolExecutor(max_workers=THREADS) as pool:
+        for j, bits in enumerate(pool.map(row, dirs)):
+            packed[j] = bits
+            if progress is not None and (j % 16 == 15 or j == len(dirs) - 1):
+                progress(j + 1, len(dirs))
+    _mirror_below_horizon(packed, normals, start, counts, grid)
     return packed
+
+
+def _mirror_below_horizon(packed, normals, start, counts, grid) -> None:
+    """In place: each facet's bits at directions just below its plane are those of
+    the mirror direction above it, so that interpolating near grazing does not
+    mix in zeros. Only directions that a look-up above the plane can reach
+    (within twice the grid's node spacing) are filled: further below, the
+    facet's terms vanish whatever its bits (it is unlit or unseen).
+    """
+    dirs = octahedral_directions(grid)
+    band = -np.sin(min(2.0 * node_spacing_rad(grid), 0.5 * np.pi))
+    step = max(1, MIRROR_BLOCK // len(dirs))
+    for s in range(0, len(normals), step):
+        cos = dirs @ normals[s : s + step].T  # (D, facets of the block)
+        j, f = np.nonzero((cos <= 1e-9) & (cos > band))
+        f = f + s
+        d = dirs[j]
+        mirror = nearest_node(d - 2.0 * np.sum(d * normals[f], 1)[:, None] * normals[f], grid)
+        k, first = counts[f], start[f]
+        narrow = k < 32  # bits of a shared word
+        word = first[narrow] // 32
+        mask = (((1 << k[narrow]) - 1) << (first[narrow] % 32)).astype(np.uint32)
+        bits = packed[mirror[narrow], word] & mask  # read every source before writing
+        n_w = k[~narrow] // 32  # whole words of their own
+        rep = np.repeat(np.arange(len(n_w)), n_w)
+        w = (
+            np.repeat(first[~narrow] // 32, n_w)
+            + np.arange(len(rep))
+            - np.repeat(np.cumsum(n_w) - n_w, n_w)
+        )
+        words = packed[mirror[~narrow][rep], w]
+        np.bitwise_or.at(packed, (j[narrow], word), bits)
+        packed[j[~narrow][rep], w] = words
 
 
 def pack_bits(visible: np.ndarray) -> np.ndarray:

@@ -5,7 +5,7 @@ Method (precomputed sub-point visibility on a direction grid):
 * Each facet that *can* be shadowed (``Facets.can_shadow``: geometry lies in
   front of its plane) gets sub-points, and for every direction of an
   octahedral grid one bit per sub-point says whether it sees that direction
-  (:mod:`jaxlc.body.raycast`, traced once in JAX). The bits are cached on disk
+  (:mod:`jaxlc.body.raycast`, traced once on the host). The bits are cached on disk
   (:func:`jaxlc.io.cache.cache_dir` ``("shadow")``), keyed by the mesh's
   content and the settings, and kept in memory for the rest of the process.
 * At render time the lit *and* seen fraction of facet f is
@@ -16,6 +16,17 @@ Method (precomputed sub-point visibility on a direction grid):
 
 Facets that cannot be shadowed get no data and no work; a convex object has no
 shadow table at all (identical to the unshadowed model).
+
+Size: a table holds grid² × sub-points bits, and tracing it costs about
+grid² × (sub-points + 2 × triangles). Both are bounded (:data:`SUBPOINT_BUDGET`,
+512 MB at the default 32 × 32 grid; :data:`TRACE_BUDGET`). A large non-convex
+mesh (every facet gets 32 sub-points or more) gets fewer sub-points: small
+facets get 1, 2, 4, 8 or 16 as their area asks (facets then share words), then
+the spacing grows in steps of 2^¼; if that is not enough, a coarser grid. Each facet's
+lit-and-seen fraction is then coarser (a facet with one sub-point is lit or
+not, blended only by the grid interpolation) and shadow edges move in larger
+angular steps; the plan line says so (:func:`reduced_resolution`). Meshes of
+a few thousand triangles, the shipped ones included, are far below both.
 """
 
 from __future__ import annotations
@@ -33,13 +44,21 @@ from jaxtyping import Array, Float, UInt32
 
 from jaxlc.body.mesh import Facets, TriangleMesh
 from jaxlc.body.octahedral import grid_corners
-from jaxlc.body.raycast import trace_visibility
+from jaxlc.body.raycast import trace_visibility, word_layout
 from jaxlc.errors import JaxlcError
 from jaxlc.io.cache import cache_dir
 from jaxlc.io.files import atomic_output
 
 #: Bump when the precomputation changes: cached tables of older versions are ignored.
-ALGORITHM_VERSION = 3
+ALGORITHM_VERSION = 4
+#: Most sub-points of one table (see the module docstring).
+SUBPOINT_BUDGET = 1 << 22
+#: Most directions × (sub-points + 2 × triangles) of one trace (its cost, measured:
+#: ~0.5 µs each on the 2-core reference machine, so a few minutes at most;
+#: ``experiments/big_mesh.py``).
+TRACE_BUDGET = 1 << 29
+#: Sub-point counts below one word: facets with these share uint32 words.
+SHARED_COUNTS = (1, 2, 4, 8, 16)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -85,6 +104,36 @@ class ShadowSettings:
         words = np.ceil(np.asarray(areas_m2) / (32.0 * per_point)).astype(int)
         return np.clip(words, 1, self.max_subpoints // 32)
 
+    def subpoints_per_facet(
+        self, areas_m2: np.ndarray, diag_m: float, budget: int = SUBPOINT_BUDGET
+    ) -> tuple[np.ndarray, float]:
+        """(F,) sub-points for facets of these areas, and the spacing used (× object size).
+
+        32 × :meth:`words_per_facet` while the total is within ``budget``;
+        otherwise counts by area are rounded up to 1, 2, 4, 8, 16 or a multiple of
+        32 (no longer at least 32 a facet), at the spacing asked for and then at
+        spacings larger by steps of 2^¼ until the total fits.
+        """
+        areas_m2 = np.asarray(areas_m2, dtype=np.float64)
+        counts = 32 * self.words_per_facet(areas_m2, diag_m)
+        if counts.sum() <= budget:
+            return counts, self.spacing
+        if len(areas_m2) > budget:
+            raise JaxlcError(
+                f"shadow table: {len(areas_m2):,} facets can be shadowed, more than the "
+                f"budget of {budget:,} sub-points (render with shadows = 'off')"
+            )
+        shared = np.asarray(SHARED_COUNTS)
+        spacing = self.spacing / 2.0**0.25  # first the spacing asked for, without the floor
+        while True:
+            spacing *= 2.0**0.25
+            need = np.maximum(areas_m2 / (spacing * diag_m) ** 2, 1.0)
+            small = shared[np.minimum(np.searchsorted(shared, need), len(shared) - 1)]
+            counts = np.where(need <= shared[-1], small, 32 * np.ceil(need / 32.0))
+            counts = np.minimum(counts, self.max_subpoints).astype(np.int64)
+            if counts.sum() <= budget:
+                return counts, float(spacing)
+
 
 # ---------------------------------------------------------------------------
 # Cache
@@ -94,12 +143,12 @@ def cache_key(
     mesh: TriangleMesh,
     facets: Facets,
     facet_ids: np.ndarray,
-    words: np.ndarray,
+    counts: np.ndarray,
     settings: ShadowSettings,
 ) -> str:
     """Content hash of everything the table depends on."""
     h = hashlib.sha256()
-    for arr in (mesh.vertices_m, mesh.faces, facets.triangle_facet, facet_ids, words):
+    for arr in (mesh.vertices_m, mesh.faces, facets.triangle_facet, facet_ids, counts):
         a = np.ascontiguousarray(arr)
         h.update(str(a.dtype).encode() + str(a.shape).encode() + a.tobytes())
     h.update(repr((ALGORITHM_VERSION, settings.grid)).encode())
@@ -111,25 +160,30 @@ class ShadowData:
     """Packed visibility with its layout and provenance (host side).
 
     Attributes:
-        bits: (D, Σ words) uint32; facets are sorted by their number of words
-            and each owns its words consecutively (32 sub-points per word).
+        bits: (D, words) uint32; facets are sorted by their number of
+            sub-points and laid out by :func:`jaxlc.body.raycast.word_layout`
+            (32 sub-points per word; counts below 32 share words).
         facet_ids: (F_s,) the facets that can be shadowed, in that order.
-        words: (F_s,) words per facet.
-        settings: the resolution used.
+        counts: (F_s,) sub-points per facet.
+        settings: the resolution used: the one asked for unless the budgets
+            made the grid coarser (:func:`reduced_resolution`).
         seconds: time spent tracing (0 when loaded from the cache).
         from_cache: whether the table came from disk.
         path: the cache file, if any.
         key: content hash of everything the table depends on (:func:`cache_key`).
+        spacing: the sub-point spacing used (× object size): ``settings.spacing``
+            unless the budget made it coarser.
     """
 
     bits: np.ndarray
     facet_ids: np.ndarray
-    words: np.ndarray
+    counts: np.ndarray
     settings: ShadowSettings
     seconds: float
     from_cache: bool
     path: Path | None
     key: str = ""
+    spacing: float = 0.0
 
     @property
     def nbytes(self) -> int:
@@ -137,13 +191,14 @@ class ShadowData:
 
     @property
     def subpoints(self) -> int:
-        return int(32 * np.sum(self.words))
+        return int(np.sum(self.counts))
 
     @property
     def groups(self) -> tuple[tuple[int, int], ...]:
-        """((facets, words per facet), …): runs of facets with equal word counts."""
-        values, counts = np.unique(self.words, return_counts=True)
-        return tuple((int(c), int(v)) for v, c in zip(values, counts, strict=True))
+        """((facets, sub-points per facet), …): runs of facets with equal counts."""
+        first = np.flatnonzero(np.diff(self.counts, prepend=-1))
+        size = np.diff(np.append(first, len(self.counts)))
+        return tuple((int(n), int(self.counts[f])) for f, n in zip(first, size, strict=True))
 
 
 #: Tables already loaded or traced in this process, by (cache key, cache file, its stamp).
@@ -152,6 +207,45 @@ _LOADED: dict[tuple, ShadowData] = {}
 _TABLES: dict[tuple[str, str], ShadowTable] = {}
 #: How many tables a process keeps in memory.
 KEEP_TABLES = 8
+
+
+def _layout(mesh: TriangleMesh, facets: Facets, settings: ShadowSettings):
+    """(facet ids sorted by count, sub-points per facet, settings used, spacing used).
+
+    The settings asked for, unless the table would pass :data:`SUBPOINT_BUDGET`
+    or its trace :data:`TRACE_BUDGET`: then fewer sub-points (not below one a
+    facet, nor below the triangle count, under which the trace hardly gets
+    cheaper), then a coarser grid (not below 8 × 8).
+    """
+    facet_ids = np.flatnonzero(facets.can_shadow)
+    diag = float(np.linalg.norm(np.ptp(mesh.vertices_m, axis=0)))
+    areas = facets.areas_m2[facet_ids]
+    n_tri = int(np.count_nonzero(facets.triangle_facet >= 0))
+    per_direction = TRACE_BUDGET // settings.grid**2  # sub-points + 2 × triangles
+    budget = SUBPOINT_BUDGET
+    if 32 * int(settings.words_per_facet(areas, diag).sum()) + 2 * n_tri > per_direction:
+        budget = min(budget, max(per_direction - 2 * n_tri, n_tri, len(facet_ids)))
+    counts, spacing = settings.subpoints_per_facet(areas, diag, budget)
+    grid = settings.grid
+    while grid > 8 and grid**2 * (int(counts.sum()) + 2 * n_tri) > TRACE_BUDGET:
+        grid -= 1
+    order = np.argsort(counts, kind="stable")  # runs of equal counts
+    used = dataclasses.replace(settings, grid=grid)
+    return facet_ids[order], counts[order], used, spacing
+
+
+def reduced_resolution(mesh: TriangleMesh, facets: Facets, settings: ShadowSettings) -> str:
+    """The plan line's note on a table: empty when it gets the resolution asked for,
+    else how much coarser the budgets made it."""
+    _, counts, used, spacing = _layout(mesh, facets, settings)
+    if counts.min() >= 32 and spacing == settings.spacing and used.grid == settings.grid:
+        return ""
+    lo, hi = int(counts.min()), int(counts.max())
+    return (
+        f"; REDUCED for a mesh this large: {used.grid}×{used.grid} grid, "
+        f"{int(counts.sum()):,} sub-points ({lo if lo == hi else f'{lo}–{hi}'} per "
+        f"facet, every {spacing:.3g} × object size), so coarser shadow edges"
+    )
 
 
 def shadow_data(
@@ -168,22 +262,18 @@ def shadow_data(
     ``use_cache=False`` always traces and stores nothing.
     """
     settings = settings or ShadowSettings()
-    facet_ids = np.flatnonzero(facets.can_shadow)
-    if facet_ids.size == 0:
+    if not np.any(facets.can_shadow):
         return None
-    diag = float(np.linalg.norm(np.ptp(mesh.vertices_m, axis=0)))
-    words = settings.words_per_facet(facets.areas_m2[facet_ids], diag)
-    order = np.argsort(words, kind="stable")  # runs of equal word counts
-    facet_ids, words = facet_ids[order], words[order]
-    key = cache_key(mesh, facets, facet_ids, words, settings)
+    facet_ids, counts, settings, spacing = _layout(mesh, facets, settings)
+    key = cache_key(mesh, facets, facet_ids, counts, settings)
     path = cache_dir("shadow") / f"{key}.npz"
     memo = (key, str(path), _stamp(path))
     if use_cache and memo in _LOADED:
         return dataclasses.replace(_LOADED[memo], from_cache=True, seconds=0.0)
-    data = _load(path, key, facet_ids, words, settings) if use_cache else None
+    data = _load(path, key, facet_ids, counts, settings, spacing) if use_cache else None
     if data is None:
         t0 = time.perf_counter()
-        bits = trace_visibility(mesh, facets, facet_ids, words, settings.grid, progress)
+        bits = trace_visibility(mesh, facets, facet_ids, counts, settings.grid, progress)
         seconds = time.perf_counter() - t0
         stored = None
         if use_cache:
@@ -193,7 +283,7 @@ def shadow_data(
                 stored = path
             except OSError:
                 pass  # read-only home: work without a disk cache
-        data = ShadowData(bits, facet_ids, words, settings, seconds, False, stored, key)
+        data = ShadowData(bits, facet_ids, counts, settings, seconds, False, stored, key, spacing)
     if use_cache:
         while len(_LOADED) >= KEEP_TABLES:
             _LOADED.pop(next(iter(_LOADED)))
@@ -211,7 +301,7 @@ def _stamp(path: Path):
     return st.st_size, st.st_mtime_ns
 
 
-def _load(path: Path, key: str, facet_ids, words, settings) -> ShadowData | None:
+def _load(path: Path, key: str, facet_ids, counts, settings, spacing) -> ShadowData | None:
     """The cached table at ``path``, or None if it is missing, unreadable or stale."""
     if not path.is_file():
         return None
@@ -220,9 +310,9 @@ def _load(path: Path, key: str, facet_ids, words, settings) -> ShadowData | None
             bits = z["bits"]
     except (OSError, ValueError, KeyError):
         return None  # unreadable cache entry: recompute and replace it
-    if bits.shape != (settings.grid**2, int(words.sum())):
+    if bits.shape != (settings.grid**2, word_layout(counts)[1]):
         return None
-    return ShadowData(bits, facet_ids, words, settings, 0.0, True, path, key)
+    return ShadowData(bits, facet_ids, counts, settings, 0.0, True, path, key, spacing)
 
 
 # ---------------------------------------------------------------------------
@@ -233,10 +323,10 @@ class ShadowTable(eqx.Module):
     """Packed visibility bits of the facets that can be shadowed (traced input).
 
     Attributes:
-        bits: (D, Σ words) uint32 (see :class:`ShadowData`); bit b of a word says
+        bits: (D, W) uint32 (see :class:`ShadowData`); bit b of a word says
             whether that sub-point sees the grid direction of the row.
         subpoints: (F_s,) sub-points per facet.
-        groups: ((facets, words per facet), …) runs of the word layout.
+        groups: ((facets, sub-points per facet), …) runs of the word layout.
         grid: octahedral grid side N (D = N²).
         interpolation: ``"bilinear"`` or ``"nearest"``.
     """
@@ -257,18 +347,38 @@ def lit_seen_fraction(
     dtype = sun_b.dtype
     c = idx_s.shape[1]
     rows = table.bits[jnp.concatenate([idx_s, idx_v], axis=1)]  # one gather: (T, 2C, W)
-    count = 0.0
+    shared = tuple(g for g in table.groups if g[1] < 32)  # runs that share words: first
+    split = sum(-(-n * k // 32) for n, k in shared)
+    count_shared, count = 0.0, 0.0
     for a in range(c):
         for b in range(c):
-            both = jax.lax.population_count(rows[:, a] & rows[:, c + b]).astype(dtype)
-            count = count + (w_s[:, a] * w_v[:, b])[:, None] * both
-    parts, start = [], 0
-    for n_facets, words in table.groups:  # sum each facet's words: a static reshape
+            both = rows[:, a] & rows[:, c + b]
+            w = (w_s[:, a] * w_v[:, b])[:, None]
+            if shared:
+                count_shared = count_shared + w * _slot_counts(both[:, :split], shared, dtype)
+            if split < table.bits.shape[1]:
+                count = count + w * jax.lax.population_count(both[:, split:]).astype(dtype)
+    parts, start = ([count_shared] if shared else []), 0
+    for n_facets, k in table.groups[len(shared) :]:  # sum each facet's words: a static reshape
+        words = k // 32
         block = count[:, start : start + n_facets * words]
         parts.append(block if words == 1 else block.reshape(-1, n_facets, words).sum(-1))
         start += n_facets * words
     per_facet = parts[0] if len(parts) == 1 else jnp.concatenate(parts, axis=1)
     return per_facet / table.subpoints.astype(dtype)[None, :]
+
+
+def _slot_counts(words, groups, dtype):
+    """(T, Σ facets) set bits of each facet in words (T, W) shared by 32/k facets each."""
+    parts, start = [], 0
+    for n_facets, k in groups:
+        n_words = -(-n_facets * k // 32)
+        shifts = jnp.arange(0, 32, k, dtype=jnp.uint32)[None, None, :]
+        x = words[:, start : start + n_words, None]
+        slots = jax.lax.population_count((x >> shifts) & jnp.uint32((1 << k) - 1))
+        parts.append(slots.reshape(x.shape[0], -1)[:, :n_facets].astype(dtype))
+        start += n_words
+    return parts[0] if len(parts) == 1 else jnp.concatenate(parts, axis=1)
 
 
 def shadow_table(data: ShadowData, dtype=jnp.float32) -> ShadowTable:
@@ -278,7 +388,7 @@ def shadow_table(data: ShadowData, dtype=jnp.float32) -> ShadowTable:
         return _TABLES[memo]
     table = ShadowTable(
         bits=jnp.asarray(data.bits),
-        subpoints=jnp.asarray(32.0 * data.words, dtype=dtype),
+        subpoints=jnp.asarray(data.counts, dtype=dtype),
         groups=data.groups,
         grid=data.settings.grid,
         interpolation=data.settings.interpolation,

@@ -70,8 +70,12 @@ def calibrate_render(
     import jaxlc
     from calibrate.job import BlenderOptions
     from calibrate.render import blender_render
+    from jaxlc.io.files import atomic_outputs, check_output
     from jaxlc.io.tables import write_table
 
+    check_output(output, "table", "-o")
+    check_output(plot, "plot", "--plot")
+    check_output(keep_images, "folder", "--keep-images")
     t0 = time.perf_counter()
     sc = jaxlc.load_scene(scene)
     table = jaxlc.read_geometry(geometry)
@@ -87,11 +91,13 @@ def calibrate_render(
     bar, update = frame_bar("Cycles")
     with bar:
         lc = blender_render(sc, table, options, progress=update)
-    write_table(lc, output)
-    if plot is not None:
-        from jaxlc.plot import plot_lightcurve
+    with atomic_outputs(output, plot) as (table_tmp, plot_tmp):
+        write_table(lc, table_tmp)
+        if plot is not None:
+            from jaxlc.plot import plot_lightcurve
 
-        plot_lightcurve(lc, plot, title=f"{Path(sc.source).stem} (Cycles): {sc.mesh_path.name}")
+            title = f"{Path(sc.source).stem} (Cycles): {sc.mesh_path.name}"
+            plot_lightcurve(lc, plot_tmp, title=title)
     n = int(lc["visible"].sum())
     console().print(
         f"rendered {n} frames with Cycles ({camera} camera, {resolution}² px, {samples} samples, "
@@ -117,16 +123,22 @@ def calibrate_crosscheck(
             "--timing/--no-timing", help="Also time Cycles against resolution and samples."
         ),
     ] = False,
-    out: Annotated[Path, typer.Option(help="Folder for the table and plots.")] = Path(
-        "experiments/results/crosscheck"
-    ),
+    out: Annotated[
+        Path,
+        typer.Option(
+            help="Folder for the table and plots (the committed results live in "
+            "experiments/results/crosscheck; write there only on purpose)."
+        ),
+    ] = Path("build/crosscheck"),
 ):
     """Cycles against the JAX model for the standard scenes: table and plots."""
     from rich.table import Table
 
     from calibrate.crosscheck import MODES, SCENES, run_crosscheck, timing_sweep
     from jaxlc.errors import JaxlcError
+    from jaxlc.io.files import check_output
 
+    check_output(out, "folder", "--out")
     scene_ids = [x.strip().upper() for x in scenes.split(",") if x.strip()]
     mode_ids = [x.strip().lower() for x in modes.split(",") if x.strip()]
     bad = [x for x in scene_ids if x not in SCENES] + [m for m in mode_ids if m not in MODES]

@@ -35,8 +35,11 @@ def geometry_synthetic(
 ):
     """Write a synthetic table: fixed Sun, observer sweeping a phase-angle range."""
     from jaxlc.geometry import synthetic_geometry
+    from jaxlc.io.files import check_output
     from jaxlc.io.tables import write_table
 
+    check_output(output, "table", "-o")
+    check_time_range(utc_option(start_utc, "--start-utc"), duration_s, "--start-utc")
     df = synthetic_geometry(
         duration_s=duration_s,
         step_s=step_s,
@@ -84,10 +87,59 @@ def utc_option(text: str, what: str = "--start"):
     return utc_timestamp(text, what)
 
 
-def tle_objects(tle, norad, name, start):
+def check_time_range(start, duration_s: float, what: str = "--start") -> None:
+    """Refuse a window outside the DE421 ephemeris (every jaxlc time lies inside it).
+
+    Compares seconds, so that absurd durations fail here rather than overflow.
+    """
+    from jaxlc.errors import JaxlcError
+    from jaxlc.geometry.ephemeris import EPHEMERIS_END, EPHEMERIS_START
+
+    if start < EPHEMERIS_START or duration_s > (EPHEMERIS_END - start).total_seconds():
+        raise JaxlcError(
+            f"{what} {start:%Y-%m-%d %H:%M} UTC plus {duration_s:.6g} s leaves "
+            f"{EPHEMERIS_START:%Y-%m-%d} … {EPHEMERIS_END:%Y-%m-%d}, the range of the shipped "
+            "DE421 ephemeris; give a window inside it"
+        )
+
+
+def window_options(start: str, duration_s: float, step_s: float, max_samples: int):
+    """The window start, after checking the window, before any other work."""
+    from jaxlc.geometry.observe import check_window
+
+    t0 = utc_option(start)
+    check_window(duration_s, step_s, max_samples)
+    check_time_range(t0, duration_s)
+    return t0
+
+
+def site_option(site, lat_deg, lon_deg, alt_m):
+    """The site of --site or --lat-deg/--lon-deg/--alt-m (coordinates in --site get a hint)."""
+    from jaxlc.errors import JaxlcError
+    from jaxlc.geometry.sites import SITES, site_from
+
+    if site is not None and site.strip().lower() not in SITES and "," in site:
+        raise JaxlcError(
+            f"--site {site!r} is not a registered site (see `jaxlc sites`); give coordinates "
+            "as --lat-deg LAT --lon-deg LON --alt-m HEIGHT (degrees, metres)"
+        )
+    return site_from(site, lat_deg, lon_deg, alt_m)
+
+
+def tle_objects(tle, norad, name, start, one: bool = False):
+    """One element set per selected object (``one``: exactly one object), for ``start``."""
+    from jaxlc.errors import JaxlcError
     from jaxlc.geometry.tle import latest_before, read_tles, select_objects
 
-    return latest_before(select_objects(read_tles(tle), norad, name), start)
+    chosen = select_objects(read_tles(tle), norad, name)
+    labels = list(dict.fromkeys(t.label for t in chosen))
+    if one and len(labels) != 1:
+        more = "…" if len(labels) > 6 else ""
+        raise JaxlcError(
+            f"{tle} holds {len(labels)} objects ({', '.join(labels[:6])}{more}); "
+            "choose one with --norad or --name"
+        )
+    return latest_before(chosen, start)
 
 
 @app.command()
@@ -126,16 +178,27 @@ def passes(
         Path | None, typer.Option("--csv", help="Also write the passes (.csv/.parquet).")
     ] = None,
 ):
-    """List visible passes of the TLE file's objects (or --norad/--name) from a site."""
+    """List visible passes of the TLE file's objects (or --norad/--name) from a site.
+
+    Passes whose TLE epoch is more than 14 days from the pass start are marked
+    stale (SGP4 errors grow by ~1–3 km per day).
+    """
+    import math
+
     from rich.progress import Progress
     from rich.table import Table
 
-    from jaxlc.geometry.observe import Visibility, find_passes
-    from jaxlc.geometry.sites import site_from
+    from jaxlc.errors import JaxlcError
+    from jaxlc.geometry.observe import MAX_SEARCH_SAMPLES, Visibility, find_passes
+    from jaxlc.geometry.tle import STALE_EPOCH_DAYS
+    from jaxlc.io.files import check_output
     from jaxlc.io.tables import write_table
 
-    where = site_from(site, lat_deg, lon_deg, alt_m)
-    t0 = utc_option(start)
+    check_output(csv, "table", "--csv")
+    if not (math.isfinite(days) and days > 0):
+        raise JaxlcError(f"--days {days!r} must be > 0 (the window length in days, e.g. 1)")
+    where = site_option(site, lat_deg, lon_deg, alt_m)
+    t0 = window_options(start, days * 86400.0, step_s, MAX_SEARCH_SAMPLES)
     rules = Visibility(min_elevation_deg, max_sun_elevation_deg, min_shadow_nu)
     objs = tle_objects(tle, norad, name, t0)
     with Progress(console=console(), transient=True) as bar:
@@ -169,6 +232,7 @@ def passes(
         "max el",
         "phase angle",
         "min range",
+        "TLE age",
     ):
         table.add_column(col)
     for r in found.itertuples():
@@ -180,8 +244,18 @@ def passes(
             f"{r.max_elevation_deg:.1f}°",
             f"{r.phase_min_deg:.0f}–{r.phase_max_deg:.0f}°",
             f"{r.min_range_km:,.0f} km",
+            f"{r.tle_age_days:.1f} d" + (" STALE" if r.stale else ""),
         )
     console(stderr=False).print(table)
+    n_stale = int(found["stale"].sum())
+    if n_stale:
+        console().print(
+            f"warning: {n_stale} of {len(found)} passes use a TLE more than "
+            f"{STALE_EPOCH_DAYS:g} days from its epoch (marked STALE; SGP4 errors grow by "
+            "~1–3 km per day): get element sets nearer the window, or drop those objects",
+            markup=False,
+            soft_wrap=True,
+        )
 
 
 @geometry_app.command("pass")
@@ -205,20 +279,20 @@ def geometry_pass(
     min_shadow_nu: MinNuOpt = 0.0,
 ):
     """Write the geometry table of one object over a window (every row; `visible` flags)."""
-    from jaxlc.errors import JaxlcError
-    from jaxlc.geometry.observe import Visibility, explain_invisible, geometry_table
-    from jaxlc.geometry.sites import site_from
+    from jaxlc.geometry.observe import (
+        MAX_TABLE_ROWS,
+        Visibility,
+        explain_invisible,
+        geometry_table,
+    )
+    from jaxlc.io.files import check_output
     from jaxlc.io.tables import write_table
 
-    where = site_from(site, lat_deg, lon_deg, alt_m)
-    t0 = utc_option(start)
-    objs = tle_objects(tle, norad, name, t0)
-    if len(objs) != 1:
-        labels = ", ".join(o.label for o in objs[:6])
-        raise JaxlcError(
-            f"{tle} holds {len(objs)} objects ({labels}…); choose one with --norad or --name"
-        )
+    check_output(output, "table", "-o")
+    where = site_option(site, lat_deg, lon_deg, alt_m)
+    t0 = window_options(start, duration_s, step_s, MAX_TABLE_ROWS)
     rules = Visibility(min_elevation_deg, max_sun_elevation_deg, min_shadow_nu)
+    objs = tle_objects(tle, norad, name, t0, one=True)
     df = geometry_table(objs[0], where, t0, duration_s, step_s, exposure_s, rules)
     write_table(df, output)
     n_vis = int(df["visible"].sum())

@@ -48,8 +48,10 @@ def period(
     import json as _json
 
     from jaxlc.inference.period import analyse_period, format_p
+    from jaxlc.io.files import check_output
     from jaxlc.io.observations import observed_samples, read_observations
 
+    check_output(plot, "plot", "--plot")
     obs = read_observations(lightcurve)
     col = column or ("std_mag" if "std_mag" in obs.columns else "mag")
     t, y, err = observed_samples(obs, col)
@@ -137,8 +139,10 @@ def fit(
     import jaxlc
     from jaxlc.inference.fit import fit_spin
     from jaxlc.inference.mcmc import FitSettings
+    from jaxlc.io.files import check_output
     from jaxlc.xla import enable_persistent_cache
 
+    check_output(output, "folder", "-o")
     err = console()
     settings = FitSettings(
         n_starts=starts,

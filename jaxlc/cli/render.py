@@ -67,10 +67,13 @@ def render(
     from rich.progress import Progress
 
     import jaxlc
+    from jaxlc.io.files import atomic_outputs, check_output
     from jaxlc.io.tables import write_table
     from jaxlc.rendering.observation import geometry_arrays
     from jaxlc.rendering.plan import make_plan
 
+    check_output(output, "table", "-o")
+    check_output(plot, "plot", "--plot")
     t0 = time.perf_counter()
     sc = jaxlc.load_scene(scene)
     table = jaxlc.read_geometry(geometry)
@@ -90,11 +93,12 @@ def render(
 
         lc = jaxlc.render(sc, table, precision=precision, options=options, progress=traced)
     elapsed = time.perf_counter() - t0
-    write_table(lc, output)
-    if plot is not None:
-        from jaxlc.plot import plot_lightcurve
+    with atomic_outputs(output, plot) as (table_tmp, plot_tmp):
+        write_table(lc, table_tmp)
+        if plot is not None:
+            from jaxlc.plot import plot_lightcurve
 
-        plot_lightcurve(lc, plot, title=f"{Path(sc.source).stem}: {sc.mesh_path.name}")
+            plot_lightcurve(lc, plot_tmp, title=f"{Path(sc.source).stem}: {sc.mesh_path.name}")
     vis = int(lc["visible"].sum())
     blur = f"{plan.subsamples} sub-exposure(s)"
     found = re.search(r"[\d.]+ instants per exposure", lc.attrs.get("plan", ""))

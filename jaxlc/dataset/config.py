@@ -24,6 +24,9 @@ class DatasetError(JaxlcError):
 
 #: Largest number of curves of one dataset.
 MAX_COUNT = 1_000_000_000
+#: Most samples (curves × samples per curve) in one shard: a shard is rendered in
+#: the memory of one worker, about 1.5 kB per sample (1.3 GB for 200 × 3,600).
+MAX_SHARD_SAMPLES = 1_000_000
 
 
 @dataclasses.dataclass(frozen=True)

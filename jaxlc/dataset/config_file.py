@@ -59,6 +59,7 @@ import numpy as np
 from jaxlc.body.brdf import BRDFS
 from jaxlc.dataset.config import (
     MAX_COUNT,
+    MAX_SHARD_SAMPLES,
     DatasetConfig,
     DatasetError,
     MaterialPrior,
@@ -67,12 +68,29 @@ from jaxlc.dataset.config import (
     ShapeClass,
     SyntheticSource,
 )
+from jaxlc.dataset.draw import check_extremes
 from jaxlc.errors import JaxlcError
 from jaxlc.geometry.observe import Visibility
-from jaxlc.io.toml import Section, nonnegative, nonzero_vector, positive, read_toml, whole
+from jaxlc.io.toml import (
+    Section,
+    in_range,
+    nonzero_vector,
+    read_toml,
+    whole,
+)
 from jaxlc.io.utc import format_utc, utc_timestamp
 from jaxlc.rendering.options import RenderOptions, render_options_from_table
-from jaxlc.scene import MaterialSpec, Scene, load_scene, resolve_file
+from jaxlc.scene import (
+    EXPOSURE_RANGE_S,
+    PERIOD_RANGE_S,
+    MaterialSpec,
+    Scene,
+    load_scene,
+    resolve_file,
+)
+
+#: Sample spacing a dataset may use (s): 1 µs to one day.
+CADENCE_RANGE_S = (1e-6, 86_400.0)
 
 
 def load_config(path: str | Path) -> DatasetConfig:
@@ -81,6 +99,13 @@ def load_config(path: str | Path) -> DatasetConfig:
     Raises:
         DatasetError: naming the file, table, key and value of the first problem.
     """
+    if Path(path).is_dir():
+        raise DatasetError(f"dataset config {str(path)!r} is a folder; give the TOML file in it")
+    if not Path(path).exists():
+        raise DatasetError(
+            f"dataset config {str(path)!r} does not exist; give the path of a TOML file "
+            "(examples: experiments/configs/bulk_example.toml)"
+        )
     data, text = read_toml(path, DatasetError)
     return config_from_dict(data, source=str(path), base_dir=Path(path).resolve().parent, text=text)
 
@@ -99,11 +124,24 @@ def config_from_dict(
     )
     count = ds.get("count", int, check=whole(1, MAX_COUNT), what="number of light curves")
     samples = ds.get("samples", int, check=whole(1, 1_000_000), what="samples per light curve")
-    cadence = ds.get("cadence_s", float, default=1.0, check=positive, what="seconds")
-    exposure = ds.get("exposure_s", float, default=cadence, what="seconds")
-    if not 0 <= exposure <= 3600:
-        raise DatasetError(f"{source}: [dataset]: exposure_s = {exposure:g} must be in [0, 3600]")
+    cadence = ds.get(
+        "cadence_s", float, default=1.0, check=in_range(*CADENCE_RANGE_S), what="seconds"
+    )
+    exposure = ds.get(
+        "exposure_s",
+        float,
+        default=min(cadence, EXPOSURE_RANGE_S[1]),
+        check=in_range(*EXPOSURE_RANGE_S),
+        what="seconds",
+    )
     shard_size = ds.get("shard_size", int, default=100, check=whole(1, 1_000_000))
+    if shard_size * samples > MAX_SHARD_SAMPLES:
+        raise DatasetError(
+            f"{source}: [dataset]: shard_size × samples = {shard_size:,} × {samples:,} = "
+            f"{shard_size * samples:,} samples per shard exceeds {MAX_SHARD_SAMPLES:,} (a shard "
+            f"is rendered in one worker's memory); lower shard_size to at most "
+            f"{max(1, MAX_SHARD_SAMPLES // samples):,}"
+        )
     seed = ds.get("seed", int, check=whole(0, 2**63 - 1), what="a whole number ≥ 0")
     batch = ds.get("batch_size", int, default=16, check=whole(1, 4096), what="renders per call")
     ds.finish()
@@ -126,7 +164,7 @@ def config_from_dict(
     if top.has("noise"):
         noise = _parse_noise(top.get("noise", dict), f"{source}: [noise]", geometry)
     top.finish()
-    return DatasetConfig(
+    config = DatasetConfig(
         count=count,
         samples=samples,
         cadence_s=cadence,
@@ -140,6 +178,8 @@ def config_from_dict(
         text=text,
         source=source,
     )
+    check_extremes(config)
+    return config
 
 
 def _parse_class(entry, where: str, base_dir) -> ShapeClass:
@@ -160,9 +200,11 @@ def _parse_class(entry, where: str, base_dir) -> ShapeClass:
             sec.get("mesh", str), base_dir, f"{where}: mesh", DatasetError, "meshes"
         )
         mesh_scale = 1.0
-    weight = sec.get("weight", float, default=1.0, check=positive, what="relative frequency")
+    weight = sec.get(
+        "weight", float, default=1.0, check=in_range(1e-6, 1e6), what="relative frequency"
+    )
     scale = sec.range("scale", 0.0, 1e6, default=(1.0, 1.0), positive=True, what="size factor")
-    period = sec.range("period_s", 0.0, 1e7, positive=True, what="spin period range, seconds")
+    period = sec.range("period_s", *PERIOD_RANGE_S, what="spin period range, seconds")
     scene_axis = None
     if scene is not None and scene.attitude.model == "spin":
         scene_axis = scene.attitude.body_axis
@@ -303,7 +345,9 @@ def _parse_geometry(table, where, base_dir):
                 check=lambda x: None if 0 < x <= 60 else "must be in (0, 60]",
                 what="window length",
             ),
-            search_step_s=sec.get("search_step_s", float, default=10.0, check=positive),
+            search_step_s=sec.get(
+                "search_step_s", float, default=10.0, check=in_range(0.1, 600.0), what="seconds"
+            ),
             rules=visibility,
             min_pass_s=sec.get(
                 "min_pass_s", float, default=60.0, check=lambda x: None if x >= 0 else "must be ≥ 0"
@@ -329,9 +373,13 @@ def _parse_noise(table, where, geometry) -> NoiseModel:
         check=lambda x: None if -10 <= x <= 40 else "must be in [-10, 40]",
         what="magnitude giving 1 photo-electron per second",
     )
-    sky = sec.get("sky_e_per_s", float, default=0.0, check=nonnegative, what="electrons per second")
-    read = sec.get("read_noise_e", float, default=0.0, check=nonnegative, what="electrons rms")
-    aperture = sec.get("aperture_m", float, default=None, check=positive, what="metres")
+    sky = sec.get(
+        "sky_e_per_s", float, default=0.0, check=in_range(0.0, 1e12), what="electrons per second"
+    )
+    read = sec.get("read_noise_e", float, default=0.0, check=in_range(0.0, 1e6), what="electrons")
+    aperture = sec.get(
+        "aperture_m", float, default=None, check=in_range(1e-3, 100.0), what="metres"
+    )
     synthetic = isinstance(geometry, SyntheticSource)
     altitude = airmass = None
     if sec.has("altitude_m") or sec.has("airmass"):

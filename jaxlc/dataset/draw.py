@@ -96,16 +96,10 @@ def draw_curve(config: DatasetConfig, index: int, pass_lengths: np.ndarray | Non
     z = 2.0 * rng.random() - 1.0
     ra = 360.0 * rng.random()
     phase = 360.0 * rng.random()
-    materials = []
-    for m in cls.materials:
-        entry = {"part": m.part, "brdf": m.brdf, "rd": _uniform(rng, m.rd)}
-        if m.brdf != "lambert":
-            entry["rs"] = _uniform(rng, m.rs)
-            entry["nu"] = _log_uniform(rng, m.nu)
-            nv = _log_uniform(rng, m.nv if m.nv is not None else m.nu)
-            entry["nv"] = nv if m.nv is not None else entry["nu"]
-            entry["tangent"] = list(m.tangent)
-        materials.append(entry)
+    materials = [
+        _material(m, lambda r, log: _log_uniform(rng, r) if log else _uniform(rng, r))
+        for m in cls.materials
+    ]
     g = config.geometry
     if isinstance(g, SyntheticSource):
         start_m = _log_uniform(rng, g.range_start_m)
@@ -136,6 +130,70 @@ def draw_curve(config: DatasetConfig, index: int, pass_lengths: np.ndarray | Non
         materials=tuple(materials),
         geometry=geometry,
     )
+
+
+def _material(prior, pick) -> dict:
+    """A scene ``[[material]]`` dict from a prior; ``pick(range, log_uniform)`` gives each
+    value, in the order rd, rs, nu, nv (nv is picked even when it equals nu)."""
+    entry = {"part": prior.part, "brdf": prior.brdf, "rd": pick(prior.rd, False)}
+    if prior.brdf != "lambert":
+        entry["rs"] = pick(prior.rs, False)
+        entry["nu"] = pick(prior.nu, True)
+        nv = pick(prior.nv if prior.nv is not None else prior.nu, True)
+        entry["nv"] = nv if prior.nv is not None else entry["nu"]
+        entry["tangent"] = list(prior.tangent)
+    return entry
+
+
+def check_extremes(config: DatasetConfig) -> None:
+    """Refuse priors whose extreme curves the renderer would refuse, before any work.
+
+    For each class, the scenes at the low and at the high ends of all its
+    ranges (size, period, reflectances, exponents) must be valid scenes, and
+    the largest object must be far enough away for the facet model's
+    parallel rays (:data:`jaxlc.rendering.prepare.FAR_FIELD_RADII`) at the
+    closest synthetic range.
+
+    Raises:
+        DatasetError: naming the class, the range and the fix.
+    """
+    from jaxlc.errors import JaxlcError
+    from jaxlc.rendering.prepare import FAR_FIELD_RADII
+    from jaxlc.scene import scene_from_dict
+
+    g = config.geometry
+    for class_id, cls in enumerate(config.classes):
+        where = f"{config.source}: [[class]] {cls.name!r}"
+        for end, k in (("low", 0), ("high", 1)):
+            curve = Curve(
+                index=-1,
+                class_id=class_id,
+                scale=cls.scale[k],
+                period_s=cls.period_s[k],
+                pole_ra_deg=0.0,
+                pole_dec_deg=90.0,
+                phase_deg=0.0,
+                materials=tuple(_material(m, lambda r, log, k=k: r[k]) for m in cls.materials),
+                geometry={},
+            )
+            try:
+                scene = scene_from_dict(
+                    curve_scene(config, curve), source=f"{where} at the {end} ends of its ranges"
+                )
+            except JaxlcError as exc:
+                raise DatasetError(str(exc)) from None
+        if not isinstance(g, SyntheticSource):
+            continue
+        # ``scene`` is the high ends' (the largest object).
+        radius_m = scene.scale * float(np.max(np.linalg.norm(scene.body[0].vertices_m, axis=1)))
+        closest_m = min(g.range_start_m[0], (g.range_end_m or g.range_start_m)[0])
+        if closest_m < FAR_FIELD_RADII * radius_m:
+            raise DatasetError(
+                f"{config.source}: [geometry] range_start_m/range_end_m: the closest range "
+                f"{closest_m:g} m is within {FAR_FIELD_RADII:g} × the radius of the largest "
+                f"{cls.name!r} ({radius_m:.3g} m; the facet model assumes a distant observer); "
+                f"raise the ranges' low ends to ≥ {FAR_FIELD_RADII * radius_m:.3g} m"
+            )
 
 
 def scene_dict(

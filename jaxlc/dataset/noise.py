@@ -28,6 +28,9 @@ from jaxlc.rendering import photometry
 
 #: Cap of the expected electrons per sample (numpy's Poisson sampler limit is ~9e18).
 MAX_ELECTRONS = 1e15
+#: Largest magnitude error given (mag): a signal too weak to measure, e.g. no
+#: flux at all, gets this instead of +inf, so that errors stay finite numbers.
+MAX_MAG_ERR = 100.0
 
 
 def scintillation_rel(aperture_m: float, airmass, altitude_m: float, exposure_s: float):
@@ -79,7 +82,8 @@ def add_noise(
 
     Returns:
         ``(flux_noisy_w_m2, mag_err)``, each (T,) float64; NaN where the
-        input is NaN; the noisy flux may be ≤ 0 (then its magnitude is NaN).
+        input is NaN; the noisy flux may be ≤ 0 (then its magnitude is NaN);
+        ``mag_err`` is at most ``MAX_MAG_ERR`` (also for a zero flux).
     """
     flux = np.asarray(flux_w_m2, dtype=np.float64)
     n = flux.shape[0]
@@ -100,8 +104,9 @@ def add_noise(
     counts = rng.poisson(np.minimum(expected, MAX_ELECTRONS)).astype(np.float64)
     noisy = (counts - sky + read_noise_e * z2) * per_e
     var = signal + sky + read_noise_e**2 + (scint * signal) ** 2
-    with np.errstate(divide="ignore", invalid="ignore"):
-        mag_err = np.where(signal > 0, 2.5 / math.log(10.0) * np.sqrt(var) / signal, np.inf)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        rel = np.where(signal > 0, np.sqrt(var) / signal, np.inf)
+    mag_err = np.minimum(2.5 / math.log(10.0) * rel, MAX_MAG_ERR)
     return np.where(ok, noisy, np.nan), np.where(ok, mag_err, np.nan)
 
 

@@ -13,13 +13,22 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import json
+import warnings
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from jaxlc.dataset.config import DatasetError
-from jaxlc.dataset.store import ARRAYS, FORMAT, LABELS, NOISE_ARRAYS, read_pool, zarr_module
+from jaxlc.dataset.store import (
+    ARRAYS,
+    FORMAT,
+    LABELS,
+    NOISE_ARRAYS,
+    OLD_FORMATS,
+    read_pool,
+    zarr_module,
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -36,6 +45,34 @@ class Dataset:
         done: (S,) bool, complete shards.
         root: the Zarr group; per-sample arrays are ``ds["mag"]`` etc. —
             lazy (N, T) ``zarr.Array``\\ s (index them to read numpy).
+
+    Per-sample arrays, each (N, T), and their mask ``visible``:
+
+    ==================  =======  ===============================================
+    ``visible``         bool     observed and lit: the visibility rules pass
+                                 (always for synthetic geometry; elevation, Sun,
+                                 Earth shadow for real passes) and the noise-free
+                                 flux is > 0 (a sample where no lit facet faces
+                                 the observer has no magnitude: not visible)
+    ``mag``             float32  apparent magnitude; finite where visible, else NaN
+    ``flux_w_m2``       float32  flux at the observer (W/m²); > 0 where visible,
+                                 else NaN
+    ``phase_angle_deg`` float32  Sun-object-observer angle (deg); finite where
+                                 visible (NaN past the end of a short pass)
+    ``range_m``         float32  object-observer distance (m); as phase_angle_deg
+    ``flux_noisy_w_m2`` float32  with noise (W/m², may be ≤ 0); finite where
+                                 visible, else NaN
+    ``mag_noisy``       float32  with noise; finite where visible and
+                                 ``flux_noisy_w_m2 > 0``, else NaN
+    ``mag_err``         float32  expected 1-sigma error (mag), in (0, 100]
+                                 where visible, else NaN
+    ==================  =======  ===============================================
+
+    The last three exist with a ``[noise]`` table only. No array holds ±inf,
+    so ``np.where(visible, x, 0.0)`` is finite for every array but
+    ``mag_noisy`` (mask that one with ``np.isfinite``). :meth:`geometry` gives
+    the visibility rules' own mask (its ``visible`` column), which also counts
+    unlit samples.
 
     Example:
         >>> ds = jaxlc.dataset.open("build/bulk.zarr")
@@ -103,7 +140,9 @@ class Dataset:
             shards_in_memory: shards read and mixed at a time.
 
         Yields:
-            ``{"curve": (B,) int, field: (B, T), label: (B,)}``.
+            ``{"curve": (B,) int, field: (B, T), label: (B,)}``; each field
+            is finite where ``visible`` is true (``mag_noisy``: where also
+            ``flux_noisy_w_m2 > 0``), see the class docstring.
         """
         if batch_size < 1:
             raise DatasetError(f"batch_size = {batch_size!r} must be ≥ 1")
@@ -219,7 +258,13 @@ def open_dataset(path: str | Path, partial: bool = False) -> Dataset:
         attrs = dict(root.attrs)
     except Exception as exc:
         raise DatasetError(f"{path} is not a Zarr store ({type(exc).__name__}: {exc})") from None
-    if attrs.get("format") != FORMAT:
+    if attrs.get("format") in OLD_FORMATS:
+        warnings.warn(
+            f"{path} was written by an older jaxlc (format {attrs['format']!r}): "
+            f"{OLD_FORMATS[attrs['format']]}",
+            stacklevel=2,
+        )
+    elif attrs.get("format") != FORMAT:
         raise DatasetError(f"{path} is not a jaxlc dataset (format {attrs.get('format')!r})")
     done = np.asarray(root["shards"]["done"][...], dtype=bool)
     if not done.all() and not partial:

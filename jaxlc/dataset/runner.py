@@ -10,17 +10,24 @@ or on a cluster given by its scheduler address, with a progress bar.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import os
 from pathlib import Path
 
 import numpy as np
 
-from jaxlc.dataset.config import DatasetConfig, DatasetError, PassSource
+from jaxlc.dataset.config import MAX_COUNT, DatasetConfig, DatasetError, PassSource
 from jaxlc.dataset.config_file import load_config
 from jaxlc.dataset.shards import WORKER_CACHE_ENV, run_shard
 from jaxlc.io.cache import cache_dir
+from jaxlc.io.files import check_output
 from jaxlc.xla import XLA_CACHE_ENV
+
+#: Seconds to connect to a scheduler given by address, and to wait for its first worker.
+CONNECT_TIMEOUT_S = 10.0
+#: Most local worker processes per core (each holds its own JAX and compiled kernels).
+MAX_WORKERS_PER_CORE = 4
 
 # ---------------------------------------------------------------------------
 # Running a dataset
@@ -98,7 +105,8 @@ def generate(
         out_path: the store (a ``.zarr`` folder). If it exists it must come from
             the same config (and count, seed, meshes): its missing shards are rendered.
         workers: None: a local Dask cluster with one worker process per core;
-            N > 0: N worker processes; 0: render in this process (no Dask).
+            N > 0: N worker processes (at most ``MAX_WORKERS_PER_CORE`` per core);
+            0: render in this process (no Dask).
         scheduler: address of a running Dask scheduler (e.g. ``tcp://host:8786``)
             instead of a local cluster; the workers must see ``out_path``.
         count, seed: override the config's ``count`` and ``seed``.
@@ -110,45 +118,38 @@ def generate(
     Returns:
         The finished :class:`~jaxlc.dataset.store.Dataset`.
 
+    Everything is checked before the store is created: the output path, the
+    config and options, and the scheduler (connected to first, within
+    ``CONNECT_TIMEOUT_S``). A new store that fails before its first shard is
+    written is removed again; an existing one being resumed is never removed.
+
     The arrays do not depend on ``workers`` or on the order shards finish in:
     same config, count and seed give the same bytes (on the same platform).
     """
     from jaxlc.dataset.reader import open_dataset
-    from jaxlc.dataset.store import check_store, create_store, done_shards
+    from jaxlc.dataset.store import check_store, create_store, done_shards, remove_new_store
 
+    out = check_output(out_path, "store", option="output").resolve()
     if not isinstance(config, DatasetConfig):
         config = load_config(config)
-    if count is not None:
-        if isinstance(count, bool) or not isinstance(count, int) or count < 1:
-            raise DatasetError(f"count = {count!r} must be a whole number ≥ 1")
-        config = dataclasses.replace(config, count=count)
-    if seed is not None:
-        if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-            raise DatasetError(f"seed = {seed!r} must be a whole number ≥ 0")
-        config = dataclasses.replace(config, seed=seed)
-    if config.noise is not None and config.exposure_s <= 0:
-        raise DatasetError(f"{config.source}: a [noise] model needs exposure_s > 0")
-    if workers is not None and scheduler is not None:
-        raise DatasetError("give either workers or a scheduler address, not both")
-    if workers is not None and (isinstance(workers, bool) or workers < 0):
-        raise DatasetError(f"workers = {workers!r} must be ≥ 0 (0: in this process)")
-    if workers != 0:
-        _require_dask()
-
-    out = Path(out_path).resolve()
+    config = _with_options(config, count, seed, workers, scheduler)
+    resuming = out.exists()
+    if resuming:
+        check_store(out, config)
+    done = done_shards(out) if resuming else np.zeros(config.n_shards, bool)
+    todo = [k for k in range(config.n_shards) if not done[k]]
     bar = _progress_bar(progress)
-    with bar:
-        if out.exists():
-            check_store(out, config)
-        else:
+    with _dask_client(workers if todo else 0, scheduler, len(todo)) as client, bar:
+        created = False
+        if not resuming:
             pool = None
             if isinstance(config.geometry, PassSource):
                 pool = _build_pool(config, bar)
             _warm_shadow_tables(config, bar)
-            create_store(out, config, pool)
+            created = create_store(out, config, pool)
             check_store(out, config)
-        done = done_shards(out)
-        todo = [k for k in range(config.n_shards) if not done[k]]
+            done = done_shards(out)  # another run may have created it meanwhile
+            todo = [k for k in range(config.n_shards) if not done[k]]
         done_curves = sum(len(config.shard_rows(k)) for k in np.flatnonzero(done))
         task = bar.add_task(f"{out.name}", total=config.count, completed=done_curves)
 
@@ -157,12 +158,57 @@ def generate(
             if on_shard is not None:
                 on_shard(k)
 
-        if todo and workers == 0:
-            for k in todo:
-                finished(*run_shard(config, k, str(out)))
-        elif todo:
-            _run_dask(config, out, todo, workers, scheduler, finished)
+        try:
+            if client is None:
+                for k in todo:
+                    finished(*run_shard(config, k, str(out)))
+            elif todo:
+                _run_dask(client, config, out, todo, finished)
+        except BaseException:
+            if created:
+                remove_new_store(out)  # only while no shard is done: nothing is lost
+            raise
     return open_dataset(out)
+
+
+def _with_options(config: DatasetConfig, count, seed, workers, scheduler) -> DatasetConfig:
+    """The config with ``count``/``seed`` overrides, after checking every option."""
+    if count is not None:
+        if isinstance(count, bool) or not isinstance(count, int) or not 1 <= count <= MAX_COUNT:
+            raise DatasetError(
+                f"count (--count) = {count!r} must be a whole number in [1, {MAX_COUNT:,}] "
+                "(number of light curves)"
+            )
+        config = dataclasses.replace(config, count=count)
+    if seed is not None:
+        if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2**63:
+            raise DatasetError(f"seed (--seed) = {seed!r} must be a whole number in [0, 2**63)")
+        config = dataclasses.replace(config, seed=seed)
+    if config.noise is not None and config.exposure_s <= 0:
+        raise DatasetError(f"{config.source}: a [noise] model needs exposure_s > 0")
+    if workers is not None and scheduler is not None:
+        raise DatasetError(
+            f"workers (--workers) = {workers!r} and scheduler (--scheduler) = {scheduler!r}: "
+            "give one of them, not both"
+        )
+    cores = os.cpu_count() or 1
+    most = MAX_WORKERS_PER_CORE * cores
+    if workers is not None and (
+        isinstance(workers, bool) or not isinstance(workers, int) or not 0 <= workers <= most
+    ):
+        raise DatasetError(
+            f"workers (--workers) = {workers!r} must be a whole number in [0, {most}] "
+            f"(0: in this process; at most {MAX_WORKERS_PER_CORE} processes per core, "
+            f"{cores} core(s) here)"
+        )
+    if scheduler is not None and (not isinstance(scheduler, str) or not scheduler.strip()):
+        raise DatasetError(
+            f"scheduler (--scheduler) = {scheduler!r} must be a Dask scheduler address "
+            "like tcp://host:8786"
+        )
+    if workers != 0:
+        _require_dask()
+    return config
 
 
 def _require_dask():
@@ -220,19 +266,44 @@ def _warm_shadow_tables(config, bar):
         bar.remove_task(task)
 
 
-def _run_dask(config, out: Path, todo, workers, scheduler, finished):
+@contextlib.contextmanager
+def _dask_client(workers, scheduler, n_todo: int):
+    """A Dask client for the run (None for ``workers=0``), closed on the way out.
+
+    A scheduler address is connected to here, before anything is written:
+    an unreachable or malformed address, or a cluster without workers, is a
+    :class:`DatasetError` within ``CONNECT_TIMEOUT_S``.
+    """
+    if workers == 0:
+        yield None
+        return
     import logging
 
-    from distributed import Client, LocalCluster, as_completed
+    from distributed import Client, LocalCluster
 
     cluster = None
     if scheduler is not None:
+        fix = (
+            "check the address, start the scheduler (dask scheduler) and its workers, "
+            "or leave out --scheduler to run a local cluster"
+        )
         try:
-            client = Client(scheduler, timeout="20s")
-        except OSError as exc:
-            raise DatasetError(f"cannot reach the Dask scheduler {scheduler!r}: {exc}") from None
+            client = Client(scheduler, timeout=f"{CONNECT_TIMEOUT_S:g}s")
+        except (OSError, ValueError, TypeError) as exc:
+            raise DatasetError(
+                f"scheduler (--scheduler) = {scheduler!r}: cannot connect "
+                f"({' '.join(str(exc).split())}); {fix}"
+            ) from None
+        try:
+            client.wait_for_workers(1, timeout=CONNECT_TIMEOUT_S)
+        except (OSError, TimeoutError) as exc:
+            client.close()
+            raise DatasetError(
+                f"scheduler (--scheduler) = {scheduler!r} has no workers after "
+                f"{CONNECT_TIMEOUT_S:g} s ({type(exc).__name__}); {fix}"
+            ) from None
     else:
-        n = workers or min(os.cpu_count() or 1, len(todo))
+        n = min(workers or os.cpu_count() or 1, max(n_todo, 1))
         cluster = LocalCluster(
             n_workers=n,
             threads_per_worker=1,
@@ -242,6 +313,17 @@ def _run_dask(config, out: Path, todo, workers, scheduler, finished):
             env=_worker_env(n),
         )
         client = Client(cluster)
+    try:
+        yield client
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+def _run_dask(client, config, out: Path, todo, finished):
+    from distributed import as_completed
+
     futures = []
     try:
         tag = config.fingerprint()[:8]
@@ -254,6 +336,3 @@ def _run_dask(config, out: Path, todo, workers, scheduler, finished):
     finally:
         for fut in futures:
             fut.cancel()
-        client.close()
-        if cluster is not None:
-            cluster.close()

@@ -4,9 +4,11 @@ A shard is a pure function of (config, shard index) (:func:`render_shard`):
 its curves are drawn (:mod:`jaxlc.dataset.draw`), each prepared like any
 render (:func:`jaxlc.rendering.prepare.prepare`) from its scene and geometry,
 grouped by shape class and evaluated in batches (:mod:`jaxlc.dataset.bulk`),
-their flux turned into magnitudes and, with a noise model, noisy values
-(:mod:`jaxlc.dataset.noise`). :func:`generate` renders the missing shards of a
-store (:mod:`jaxlc.dataset.store`): in this process (``workers=0``), on a local Dask
+their flux turned into magnitudes where light arrives (:func:`lit`: a stored
+sample is visible only where the visibility rules pass *and* its flux is > 0)
+and, with a noise model, noisy values (:mod:`jaxlc.dataset.noise`).
+:func:`jaxlc.dataset.generate` renders the missing shards of a store
+(:mod:`jaxlc.dataset.store`): in this process (``workers=0``), on a local Dask
 cluster (worker processes, one thread each) or on a cluster given by its
 scheduler address, with a progress bar.
 """
@@ -75,8 +77,8 @@ def render_shard(config: DatasetConfig, shard: int, pool=None) -> Shard:
         intensity[idx] = render_class(config, config.classes[class_id], [prepared[j] for j in idx])
 
     arr = [g.arrays for g in geos]
-    vis = np.stack([a.visible for a in arr])
-    bad = vis & ~np.isfinite(intensity)
+    observed = np.stack([a.visible for a in arr])
+    bad = observed & ~np.isfinite(intensity)
     if bad.any():
         j = int(np.flatnonzero(bad.any(axis=1))[0])
         raise DatasetError(
@@ -89,6 +91,7 @@ def render_shard(config: DatasetConfig, shard: int, pool=None) -> Shard:
             for j, a in enumerate(arr)
         ]
     )
+    vis = observed & lit(flux)
     flux[~vis] = np.nan
     mag = photometry.magnitude(flux)
     arrays = {
@@ -123,15 +126,32 @@ def render_shard(config: DatasetConfig, shard: int, pool=None) -> Shard:
         arrays["mag_noisy"] = magnitude_of(noisy).astype(np.float32)
         arrays["flux_noisy_w_m2"] = noisy.astype(np.float32)
         arrays["mag_err"] = err.astype(np.float32)
-    return Shard(shard, rows.start, arrays, _labels(config, curves, geos, prepared, pool))
+    return Shard(shard, rows.start, arrays, _labels(config, curves, geos, prepared, vis, pool))
 
 
-def _labels(config, curves, geos, prepared, pool) -> pd.DataFrame:
+def lit(flux_w_m2: np.ndarray) -> np.ndarray:
+    """Where a noise-free flux has a magnitude once stored: > 0 and finite in float32.
+
+    A zero flux (no lit facet faces the observer) would be ``mag = +inf``, and
+    one below float32's smallest number (≈ 1e-45 W/m², fainter than mag 90)
+    would be stored as 0; such samples are not visible in a dataset.
+
+    Args:
+        flux_w_m2: (…) noise-free flux, W/m² (NaN: not rendered).
+
+    Returns:
+        (…) bool.
+    """
+    with np.errstate(over="ignore", invalid="ignore"):
+        f = np.asarray(flux_w_m2, dtype=np.float64).astype(np.float32)
+    return np.isfinite(f) & (f > 0)
+
+
+def _labels(config, curves, geos, prepared, visible, pool) -> pd.DataFrame:
     out = []
-    for c, g, p in zip(curves, geos, prepared, strict=True):
+    for c, g, p, v in zip(curves, geos, prepared, visible, strict=True):
         cls = config.classes[c.class_id]
         a = g.arrays
-        v = a.visible
         any_v = bool(v.any())
         row = {
             "class": cls.name,
@@ -146,7 +166,7 @@ def _labels(config, curves, geos, prepared, pool) -> pd.DataFrame:
             "pole_dec_deg": c.pole_dec_deg,
             "period_s": c.period_s,
             "phase_deg": c.phase_deg,
-            "subsamples": p.plan.subsamples if any_v else 0,
+            "subsamples": p.plan.subsamples if a.visible.any() else 0,
             "shadows": p.plan.shadow is not None,
             "utc_start": g.utc_start,
             "visible_samples": int(v.sum()),

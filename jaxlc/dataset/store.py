@@ -6,15 +6,25 @@ Layout (N curves of T samples, chunks of one shard along N)::
       zarr.json                 attrs: format, config text, fingerprint, jaxlc version,
                                 git commit, classes, shapes, units, noise model
       t_s                 (T,)    float64  seconds from each curve's first exposure start
-      mag                 (N, T)  float32  NaN where not visible
-      flux_w_m2           (N, T)  float32  W/m² at the observer, NaN where not visible
-      phase_angle_deg     (N, T)  float32
-      range_m             (N, T)  float32
-      visible             (N, T)  bool
+      visible             (N, T)  bool     observed and lit (see below)
+      mag                 (N, T)  float32  finite where visible, else NaN
+      flux_w_m2           (N, T)  float32  W/m² at the observer, > 0 where visible, else NaN
+      phase_angle_deg     (N, T)  float32  finite where visible (NaN past a short pass)
+      range_m             (N, T)  float32  finite where visible (NaN past a short pass)
       mag_noisy, flux_noisy_w_m2, mag_err   (N, T) float32   only with a [noise] table
       labels/<column>     (N,)    one array per label column (LABELS)
       passes/…                    the pass pool (real-pass geometry only)
       shards/done         (S,)    bool, one chunk per shard: written after the shard's data
+
+``visible`` is the mask of every per-sample feature: the visibility rules
+pass (always for synthetic geometry; elevation, Sun and Earth shadow for real
+passes) *and* light arrives — the noise-free flux is > 0 in float32 (a
+sample where no lit facet faces the observer has no magnitude, and is not
+visible). Wherever ``visible`` is true, ``mag``, ``flux_w_m2``,
+``phase_angle_deg``, ``range_m``, ``flux_noisy_w_m2`` and ``mag_err`` are
+finite; ``mag_noisy`` is finite where, in addition, ``flux_noisy_w_m2 > 0``
+(NaN otherwise: a noisy flux ≤ 0 has no magnitude). Wherever it is false the
+photometric arrays are NaN. No array holds ±inf.
 
 A shard's chunks are written whole (each chunk file atomically, by zarr's
 local store) and its ``done`` flag last, so a killed run leaves at worst a
@@ -25,6 +35,7 @@ shards unless ``partial=True``.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import os
 import shutil
@@ -37,20 +48,39 @@ from jaxlc.dataset.config import DatasetError
 from jaxlc.io.provenance import git_commit, jaxlc_version
 
 #: Format tag written into every store's attributes.
-FORMAT = "jaxlc-dataset/1"
+FORMAT = "jaxlc-dataset/2"
+#: Earlier formats, readable with a warning (never resumed): format → what differs.
+OLD_FORMATS = {
+    "jaxlc-dataset/1": (
+        "its `visible` includes samples with zero flux (mag = +inf, mag_err = +inf); "
+        "use visible & np.isfinite(mag) as the mask, or generate it again"
+    ),
+}
 
 #: Per-sample arrays: dtype, fill value, unit/meaning; the noisy ones only with noise.
 ARRAYS = {
-    "mag": ("float32", np.nan, "apparent magnitude (noise-free); NaN: not visible"),
-    "flux_w_m2": ("float32", np.nan, "visible-band flux at the observer (W/m², noise-free)"),
+    "mag": ("float32", np.nan, "apparent magnitude (noise-free); finite where visible, else NaN"),
+    "flux_w_m2": (
+        "float32",
+        np.nan,
+        "visible-band flux at the observer (W/m², noise-free); > 0 where visible, else NaN",
+    ),
     "phase_angle_deg": ("float32", np.nan, "Sun-object-observer angle (deg)"),
     "range_m": ("float32", np.nan, "object-observer distance (m)"),
-    "visible": ("bool", False, "sample observed (visibility rules; rendered)"),
+    "visible": (
+        "bool",
+        False,
+        "observed and lit: visibility rules pass and the noise-free flux is > 0",
+    ),
 }
 NOISE_ARRAYS = {
-    "mag_noisy": ("float32", np.nan, "magnitude with noise; NaN: not visible or flux ≤ 0"),
-    "flux_noisy_w_m2": ("float32", np.nan, "flux with noise (W/m², may be ≤ 0)"),
-    "mag_err": ("float32", np.nan, "expected 1-sigma magnitude error of the noise model"),
+    "mag_noisy": ("float32", np.nan, "magnitude with noise; NaN: not visible or noisy flux ≤ 0"),
+    "flux_noisy_w_m2": ("float32", np.nan, "flux with noise (W/m², may be ≤ 0); NaN: not visible"),
+    "mag_err": (
+        "float32",
+        np.nan,
+        "expected 1-sigma magnitude error of the noise model (≤ 100); NaN: not visible",
+    ),
 }
 #: Per-curve label columns: dtype, fill value, meaning.
 LABELS = {
@@ -85,7 +115,7 @@ LABELS = {
     "pass_offset": ("int32", -1, "passes: first row taken from the pass"),
     "norad_id": ("int64", -1, "passes: catalogue number"),
     "site": ("str", "", "passes: site name"),
-    "visible_samples": ("int32", 0, "number of visible samples"),
+    "visible_samples": ("int32", 0, "number of visible samples (observed and lit)"),
     "phase_mean_deg": ("float64", np.nan, "mean phase angle over visible samples"),
     "phase_min_deg": ("float64", np.nan, "min phase angle over visible samples"),
     "phase_max_deg": ("float64", np.nan, "max phase angle over visible samples"),
@@ -125,10 +155,11 @@ def _classes_attr(config) -> list[dict]:
     return out
 
 
-def create_store(path: Path, config, pool=None) -> None:
+def create_store(path: Path, config, pool=None) -> bool:
     """Create the empty store of ``config`` at ``path`` (atomically: built beside it, renamed).
 
-    If another process created it meanwhile, that store is kept.
+    Returns:
+        True; False if another process created it meanwhile (that store is kept).
     """
     zarr = zarr_module()
     path = Path(path)
@@ -191,8 +222,23 @@ def create_store(path: Path, config, pool=None) -> None:
             if not path.exists():
                 raise
             # Another run created it first: use that one (its fingerprint is checked next).
+            return False
+        return True
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+
+
+def remove_new_store(path: Path) -> None:
+    """Remove a store this run created, as long as none of its shards is done.
+
+    Called when a run fails before it has written anything worth keeping, so
+    that no empty store is left behind; a store with finished shards stays
+    (running the command again resumes it).
+    """
+    path = Path(path)
+    with contextlib.suppress(Exception):  # unreadable: not ours to judge, keep it
+        if (path / "zarr.json").is_file() and not done_shards(path).any():
+            shutil.rmtree(path, ignore_errors=True)
 
 
 def _write_pool(group, pool) -> None:
@@ -234,6 +280,11 @@ def check_store(path: Path, config) -> None:
             f"{path} exists and is not a dataset store ({type(exc).__name__}: {exc}); "
             "choose another output path"
         ) from None
+    if attrs.get("format") in OLD_FORMATS:
+        raise DatasetError(
+            f"{path} was written by an older jaxlc (format {attrs['format']!r}, now {FORMAT!r}) "
+            "and cannot be resumed; write to a new path (or delete it to start again)"
+        )
     if attrs.get("format") != FORMAT:
         raise DatasetError(
             f"{path} exists and is not a jaxlc dataset (format {attrs.get('format')!r}); "

@@ -20,11 +20,20 @@ from jaxlc.geometry import ephemeris
 from jaxlc.geometry.eclipse import shadow_nu
 from jaxlc.geometry.orbit import propagate_gcrs_m, sgp4_messages
 from jaxlc.geometry.sites import Site
-from jaxlc.geometry.tle import TLE
+from jaxlc.geometry.tle import STALE_EPOCH_DAYS, TLE
 from jaxlc.io.tables import geometry_frame
 
-#: Samples per time chunk (bounds memory: N × chunk × 3 float64 positions).
+#: Samples per time chunk, at most (see :data:`CHUNK_CELLS`).
 TIME_CHUNK = 7200
+#: Objects × samples per chunk, at most: bounds the memory of a chunk (a few
+#: (N, T, 3) float64 arrays, 48 MB each) whatever the number of objects.
+CHUNK_CELLS = 2_000_000
+#: Rows of one geometry table, at most: 10⁶ rows (11.6 days at 1 s) take
+#: ~0.75 GB and ~2 minutes on one core, and 260 MB as CSV.
+MAX_TABLE_ROWS = 1_000_000
+#: Samples per object of one pass search, at most: chunked, so this bounds the
+#: time (~10⁵ samples per second), not the memory: 116 days at 1 s, 3 years at 10 s.
+MAX_SEARCH_SAMPLES = 10_000_000
 
 
 @dataclasses.dataclass(frozen=True)
@@ -43,13 +52,19 @@ class Visibility:
 
     def __post_init__(self):
         if not -90 <= self.min_elevation_deg <= 90:
-            raise JaxlcError(f"min elevation {self.min_elevation_deg}° must be in [-90, 90]")
+            raise JaxlcError(
+                f"min elevation {self.min_elevation_deg}° must be in [-90, 90] "
+                "(--min-elevation-deg)"
+            )
         if not -90 <= self.max_sun_elevation_deg <= 90:
             raise JaxlcError(
-                f"max Sun elevation {self.max_sun_elevation_deg}° must be in [-90, 90]"
+                f"max Sun elevation {self.max_sun_elevation_deg}° must be in [-90, 90] "
+                "(--max-sun-elevation-deg)"
             )
         if not 0 <= self.min_shadow_nu < 1:
-            raise JaxlcError(f"min shadow ν {self.min_shadow_nu} must be in [0, 1)")
+            raise JaxlcError(
+                f"min shadow ν {self.min_shadow_nu} must be in [0, 1) (--min-shadow-nu)"
+            )
 
 
 @dataclasses.dataclass
@@ -122,27 +137,48 @@ def observe_chunks(
     duration_s: float,
     step_s: float,
     rules: Visibility,
-    chunk: int = TIME_CHUNK,
+    chunk: int | None = None,
+    max_samples: int = MAX_TABLE_ROWS,
 ) -> Iterator[Observation]:
-    """:func:`observe_chunk` over a whole window, ``chunk`` samples at a time."""
-    offsets = sample_offsets(duration_s, step_s)
-    ephemeris.check_range(start_utc, start_utc + pd.Timedelta(seconds=float(offsets[-1])))
+    """:func:`observe_chunk` over a whole window, ``chunk`` samples at a time (default
+    :data:`TIME_CHUNK`, fewer for many objects: at most :data:`CHUNK_CELLS` in all)."""
+    offsets = sample_offsets(duration_s, step_s, max_samples)
+    # capped just past the ephemeris, so that centuries-long windows fail there, not overflow
+    beyond_s = (ephemeris.EPHEMERIS_END - start_utc).total_seconds() + 86400.0
+    last_s = min(float(offsets[-1]), max(beyond_s, 0.0))
+    ephemeris.check_range(start_utc, start_utc + pd.Timedelta(seconds=last_s))
+    if chunk is None:
+        chunk = max(1, min(TIME_CHUNK, CHUNK_CELLS // max(len(tles), 1)))
     for i in range(0, len(offsets), chunk):
         yield observe_chunk(tles, site, start_utc, offsets[i : i + chunk], rules)
 
 
-def sample_offsets(duration_s: float, step_s: float) -> np.ndarray:
-    """Sample times 0, step, … < duration (at least one)."""
+def sample_offsets(
+    duration_s: float, step_s: float, max_samples: int = MAX_TABLE_ROWS
+) -> np.ndarray:
+    """Sample times 0, step, … < duration in seconds: (n,), n from :func:`check_window`."""
+    return np.arange(check_window(duration_s, step_s, max_samples)) * float(step_s)
+
+
+def check_window(duration_s: float, step_s: float, max_samples: int = MAX_TABLE_ROWS) -> int:
+    """Samples n ≥ 1 of a window; commands call it before any other work.
+
+    Raises:
+        JaxlcError: a duration or step that is not a finite number > 0, or more
+        than ``max_samples`` samples (the limit bounds memory and time).
+    """
     if not (np.isfinite(duration_s) and duration_s > 0):
-        raise JaxlcError(f"duration {duration_s!r} s must be > 0")
+        raise JaxlcError(f"window length {duration_s!r} s must be > 0 (--duration-s or --days)")
     if not (np.isfinite(step_s) and step_s > 0):
-        raise JaxlcError(f"step {step_s!r} s must be > 0")
-    n = int(np.ceil(duration_s / step_s - 1e-9))
-    if n > 50_000_000:
+        raise JaxlcError(f"step {step_s!r} s must be > 0 (--step-s)")
+    n = np.ceil(duration_s / step_s - 1e-9)  # a float: 1e300 / 1e-300 must not overflow
+    if n > max_samples:
         raise JaxlcError(
-            f"{n} samples per object is too many; use a larger step or a shorter window"
+            f"a window of {duration_s:.6g} s at a step of {step_s:.6g} s is {n:.3g} samples; "
+            f"at most {max_samples:,} are allowed (memory and time): use a larger step "
+            "(--step-s) or a shorter window (--duration-s or --days)"
         )
-    return np.arange(max(n, 1)) * float(step_s)
+    return max(int(n), 1)
 
 
 # ---------------------------------------------------------------------------
@@ -166,7 +202,7 @@ def geometry_table(
     """
     rules = rules or Visibility()
     if not (np.isfinite(exposure_s) and exposure_s >= 0):
-        raise JaxlcError(f"exposure {exposure_s!r} s must be ≥ 0")
+        raise JaxlcError(f"exposure {exposure_s!r} s must be ≥ 0 (--exposure-s)")
     parts = list(observe_chunks([tle], site, start_utc, duration_s, step_s, rules))
 
     def cat(name, first_object=True):
@@ -222,8 +258,8 @@ def explain_invisible(df: pd.DataFrame, rules: Visibility) -> str:
     )
     if failed:
         text += f", SGP4 failed in {failed}"
-    if n:
-        text += f"; max elevation {np.nanmax(df['elevation_deg']):.1f}°"
+    if df["elevation_deg"].notna().any():
+        text += f"; max elevation {df['elevation_deg'].max():.1f}°"
     return text
 
 
@@ -241,6 +277,8 @@ PASS_COLUMNS = (
     "phase_max_deg",
     "min_range_km",
     "cut_by_window",
+    "tle_age_days",
+    "stale",
 )
 
 
@@ -265,14 +303,22 @@ def find_passes(
 
     Returns:
         A table with :data:`PASS_COLUMNS`, sorted by start (empty when none).
-        ``cut_by_window`` marks passes that began before or end after the window.
+        ``cut_by_window`` marks passes that began before or end after the window;
+        ``tle_age_days`` is |pass start − TLE epoch| (days) and ``stale`` marks
+        ages over :data:`jaxlc.geometry.tle.STALE_EPOCH_DAYS`.
+
+    Raises:
+        JaxlcError: a window of more than :data:`MAX_SEARCH_SAMPLES` samples.
     """
     rules = rules or Visibility()
     running: list[dict | None] = [None] * len(tles)  # a pass still open at the chunk's end
     rows = []
-    total = len(sample_offsets(duration_s, step_s))
+    total = check_window(duration_s, step_s, MAX_SEARCH_SAMPLES)
     done = 0
-    for ob in observe_chunks(tles, site, start_utc, duration_s, step_s, rules):
+    chunks = observe_chunks(
+        tles, site, start_utc, duration_s, step_s, rules, max_samples=MAX_SEARCH_SAMPLES
+    )
+    for ob in chunks:
         for i, tle in enumerate(tles):
             vis = ob.visible[i]
             if running[i] is not None and not vis[0]:
@@ -337,6 +383,7 @@ def _merge(first: dict, then: dict) -> dict:
 def _pass_row(tle: TLE, start_utc: pd.Timestamp, st: dict, step_s: float) -> dict:
     t0 = start_utc + pd.Timedelta(seconds=float(st["t0"]))
     t1 = start_utc + pd.Timedelta(seconds=float(st["t1"]))
+    age_days = tle.age_days(t0)
     return {
         "norad_id": tle.norad_id,
         "name": tle.name,
@@ -348,4 +395,6 @@ def _pass_row(tle: TLE, start_utc: pd.Timestamp, st: dict, step_s: float) -> dic
         "phase_max_deg": round(float(st["ph_max"]), 3),
         "min_range_km": round(float(st["rng_min"]) / 1e3, 3),
         "cut_by_window": bool(st["cut"]),
+        "tle_age_days": round(age_days, 3),
+        "stale": bool(age_days > STALE_EPOCH_DAYS),
     }

@@ -21,6 +21,7 @@ from jaxlc.errors import JaxlcError
 from jaxlc.geometry.observe import Visibility, find_passes, geometry_table
 from jaxlc.geometry.sites import get_site
 from jaxlc.geometry.tle import latest_before, read_tles, select_objects
+from jaxlc.io.utc import utc_timestamp
 
 #: Per-pass arrays of a pool, their dtypes and trailing shapes.
 POOL_ARRAYS = {
@@ -113,8 +114,7 @@ def build_pool(
         JaxlcError: when no pass is found.
     """
     rules = rules or Visibility()
-    start = pd.Timestamp(start_utc)
-    start = start.tz_localize("UTC") if start.tzinfo is None else start.tz_convert("UTC")
+    start = utc_timestamp(start_utc, "pass pool: start_utc")
     tles = []
     for p in tle_paths:
         tles += read_tles(p)

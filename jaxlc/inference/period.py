@@ -210,9 +210,7 @@ def analyse_period(
     if detrend_degree < -1:
         raise JaxlcError(f"detrend_degree = {detrend_degree} must be ≥ −1 (−1 or 0: the mean)")
     span = float(t[-1] - t[0])
-    p_min = float(min_period_s) if min_period_s else 2.5 * step
-    if max_period_s is not None and max_period_s <= 0:
-        raise JaxlcError(f"max_period_s = {max_period_s:g} must be > 0")
+    p_min = 2.5 * step if min_period_s is None else float(min_period_s)
     grid = periodogram.plan_grid(t, p_min, max_period_s, samples_per_peak)
     p_max_spin = grid.span_s / 2  # at least two cycles of any spin period
     p_max = min(p_max_spin, max_period_s or p_max_spin)

@@ -119,6 +119,15 @@ def plan_grid(
     Raises:
         JaxlcError: when the range is empty or no group has enough samples.
     """
+    if not (math.isfinite(min_period_s) and min_period_s > 0):
+        raise JaxlcError(f"min_period_s (--min-period-s) = {min_period_s:g} must be > 0")
+    if max_period_s is not None and not (
+        math.isfinite(max_period_s) and max_period_s > min_period_s
+    ):
+        raise JaxlcError(
+            f"max_period_s (--max-period-s) = {max_period_s:g} must exceed min_period_s = "
+            f"{min_period_s:g}"
+        )
     t = np.asarray(t_s, np.float64)
     f_hi = 1.0 / min_period_s
     span = float(t[-1] - t[0])

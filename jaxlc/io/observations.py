@@ -154,6 +154,12 @@ def read_mmt(path: str | Path) -> pd.DataFrame:
             stacklevel=2,
         )
     period = header.get("variability_period")
+    try:
+        period_s = float(period) if period else float("nan")
+    except ValueError:
+        raise TableError(
+            f"{path}: header variability_period = {period!r} is not a number of seconds"
+        ) from None
     df.attrs.update(
         {
             "source": str(path),
@@ -161,15 +167,17 @@ def read_mmt(path: str | Path) -> pd.DataFrame:
             "norad_id": satellite[0] if satellite else "",
             "object_name": " ".join(satellite[1:]),
             "track_id": header.get("track", ""),
-            "catalogue_period_s": float(period) if period else float("nan"),
+            "catalogue_period_s": period_s,
         }
     )
     return df
 
 
 def read_observations(path: str | Path) -> pd.DataFrame:
-    """An observed light curve: an MMT track or a jaxlc light-curve table (CSV/Parquet)."""
-    from jaxlc.io.tables import read_lightcurve
+    """An observed light curve: an MMT track or a table (CSV/Parquet) with ``t_s`` or
+    ``utc`` and a magnitude column (a jaxlc light-curve table, or any such table)."""
+    from jaxlc.io.tables import read_table
+    from jaxlc.io.utc import parse_utc
 
     if is_mmt_track(path):
         return read_mmt(path)
@@ -178,7 +186,16 @@ def read_observations(path: str | Path) -> pd.DataFrame:
             f"{path}: neither a light-curve table (.csv/.parquet) nor an MMT track "
             "(text starting with '# satellite:')"
         )
-    return read_lightcurve(path)
+    df = read_table(path)
+    if "t_s" not in df.columns:
+        if "utc" not in df.columns:
+            raise TableError(
+                f"{path}: needs a time column, t_s (seconds) or utc (ISO 8601); "
+                f"columns: {', '.join(map(str, df.columns))}"
+            )
+        times = parse_utc(df["utc"], f"{path}: column 'utc'", TableError)
+        df["t_s"] = (times - times[0]).total_seconds().to_numpy() if len(df) else []
+    return df
 
 
 def observed_samples(
@@ -189,16 +206,22 @@ def observed_samples(
     Raises:
         TableError: when fewer than 10 usable samples remain.
     """
+    from jaxlc.io.tables import bool_column, float_column
+
+    where = obs.attrs.get("source", "light curve")
     if column not in obs.columns:
-        raise TableError(f"light curve has no column {column!r}; columns: {list(obs.columns)}")
-    t = obs["t_s"].to_numpy(np.float64)
-    y = obs[column].to_numpy(np.float64)
+        numeric = [c for c in obs.columns if pd.api.types.is_numeric_dtype(obs[c])]
+        raise TableError(
+            f"{where}: no column {column!r}; give --column one of {', '.join(numeric) or '—'}"
+        )
+    t = float_column(obs, "t_s")
+    y = float_column(obs, column)
     ok = np.isfinite(t) & np.isfinite(y)
     if "visible" in obs.columns:
-        ok &= obs["visible"].to_numpy(bool)
+        ok &= bool_column(obs, "visible")
     err = None
     if "mag_err" in obs.columns:
-        e = obs["mag_err"].to_numpy(np.float64)
+        e = float_column(obs, "mag_err")
         ok &= np.isfinite(e) & (e > 0)
         err = e[ok]
     if np.count_nonzero(ok) < 10:

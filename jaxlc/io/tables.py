@@ -22,8 +22,10 @@ import numpy as np
 import pandas as pd
 
 from jaxlc.errors import TableError
-from jaxlc.io.files import atomic_output
+from jaxlc.geometry.eclipse import R_EARTH_M
+from jaxlc.io.files import TABLE_FORMATS, atomic_output
 from jaxlc.io.utc import format_utc, parse_utc
+from jaxlc.rendering.photometry import AU_M
 
 POSITION_COLUMNS = tuple(f"{b}_{c}_m" for b in ("rso", "sun", "obs") for c in "xyz")
 GEOMETRY_REQUIRED = ("utc", "t_s", *POSITION_COLUMNS)
@@ -47,12 +49,20 @@ LIGHTCURVE_COLUMNS = (
 )
 #: Tolerated mismatch between ``t_s`` and the ``utc`` column (seconds).
 TIME_TOLERANCE_S = 1e-3
-
-_FORMATS = {".csv": "csv", ".parquet": "parquet", ".pq": "parquet"}
+#: Frames the renderer understands: ``GCRS`` (geocentric, from ``jaxlc geometry``) and
+#: ``synthetic`` (object-centred, from ``jaxlc geometry synthetic``); a table
+#: without a frame is taken as GCRS.
+FRAMES = ("GCRS", "synthetic")
+#: Object–Sun distance allowed (AU): the Earth's orbit spans 0.983–1.017 AU.
+SUN_DISTANCE_AU = (0.95, 1.05)
+#: Smallest geocentric distance of an object or an observer in a GCRS table (m):
+#: the Earth's polar radius less 50 km (a ground site is ≥ 6.35e6 m from the centre).
+MIN_GEOCENTRIC_M = 6.30e6
+KM_HINT = " (positions look like kilometres: the columns are in metres, multiply by 1000)"
 
 
 def _format(path: Path) -> str:
-    fmt = _FORMATS.get(path.suffix.lower())
+    fmt = TABLE_FORMATS.get(path.suffix.lower())
     if fmt is None:
         raise TableError(f"{path}: unknown table extension {path.suffix!r}; use .csv or .parquet")
     return fmt
@@ -167,7 +177,8 @@ def _row_hint(df, row: int) -> str:
     return f"row {row}"
 
 
-def _float_column(df, name) -> np.ndarray:
+def float_column(df, name) -> np.ndarray:
+    """Column ``name`` as float64; a non-number is a :class:`TableError` naming its row."""
     try:
         return pd.to_numeric(df[name], errors="raise").to_numpy(dtype=np.float64)
     except (ValueError, TypeError):
@@ -179,7 +190,8 @@ def _float_column(df, name) -> np.ndarray:
         ) from None
 
 
-def _bool_column(df, name) -> np.ndarray:
+def bool_column(df, name) -> np.ndarray:
+    """Column ``name`` as bool (true/false, 1/0); anything else is a :class:`TableError`."""
     col = df[name]
     if col.dtype == bool:
         return col.to_numpy()
@@ -210,17 +222,17 @@ def validate_geometry(df: pd.DataFrame) -> pd.DataFrame:
     if missing:
         raise TableError(
             f"{where}: missing column(s) {', '.join(missing)}; a geometry table needs "
-            f"{', '.join(GEOMETRY_REQUIRED)} (see ARCHITECTURE.md)"
+            f"{', '.join(GEOMETRY_REQUIRED)} (see ARCHITECTURE.md){separator_hint(df)}"
         )
     out = pd.DataFrame(index=pd.RangeIndex(len(df)))
     out.attrs.update(df.attrs)
     for name in ("t_s", *POSITION_COLUMNS):
-        out[name] = _float_column(df, name)
+        out[name] = float_column(df, name)
     for name, default in GEOMETRY_OPTIONAL.items():
         if name == "visible":
-            out[name] = _bool_column(df, name) if name in df.columns else True
+            out[name] = bool_column(df, name) if name in df.columns else True
         else:
-            out[name] = _float_column(df, name) if name in df.columns else default
+            out[name] = float_column(df, name) if name in df.columns else default
     times = parse_utc(df["utc"], f"{where}: column 'utc'", TableError)
     out.insert(0, "utc", format_utc(times) if len(df) else [])
     for name in df.columns:  # extra columns (e.g. sgp4_error) travel unchanged
@@ -248,6 +260,7 @@ def validate_geometry(df: pd.DataFrame) -> pd.DataFrame:
         _check(
             df, vis & ~(dist > 0), f"{other}_x_m", f"puts the {other} at the object (zero distance)"
         )
+    _check_plausible(df, pos, vis)
     nu = out["shadow_nu"].to_numpy()
     _check(df, vis & ~((nu >= 0) & (nu <= 1)), "shadow_nu", "must be in [0, 1]")
     exp = out["exposure_s"].to_numpy()
@@ -255,10 +268,64 @@ def validate_geometry(df: pd.DataFrame) -> pd.DataFrame:
     return out
 
 
+def separator_hint(df: pd.DataFrame) -> str:
+    """A hint when a CSV was read as one column: its separator is not a comma."""
+    if len(df.columns) == 1:
+        name = str(df.columns[0])
+        for sep, what in ((";", "semicolons"), ("\t", "tabs"), (" ", "spaces")):
+            if sep in name.strip():
+                return f"; the file is separated by {what}: CSV tables need commas"
+    return ""
+
+
+def _check_frame(df: pd.DataFrame) -> str:
+    frame = str(df.attrs.get("frame", "GCRS")).strip()
+    known = {f.lower(): f for f in FRAMES}
+    if frame.lower() not in known:
+        raise TableError(
+            f"{_where(df)}: frame {frame!r} is not one the renderer understands "
+            f"({', '.join(FRAMES)}); convert Earth-fixed positions (ITRF/ITRS/ECEF/TEME) to GCRS "
+            "(e.g. astropy ITRS → GCRS) or make the table with `jaxlc geometry`; positions "
+            "already in another inertial frame (ICRF, J2000) are within 0.1″ of GCRS: "
+            "write '# frame: GCRS'"
+        )
+    return known[frame.lower()]
+
+
+def _check_plausible(df: pd.DataFrame, pos: dict, vis: np.ndarray) -> None:
+    """Refuse positions that cannot be metres in the table's frame (on visible rows)."""
+    frame = _check_frame(df)
+    if not np.any(vis):
+        return
+    sun_au = np.linalg.norm(pos["sun"] - pos["rso"], axis=1) / AU_M
+    lo, hi = SUN_DISTANCE_AU
+    km = KM_HINT if np.any(vis & (abs(sun_au * 1e3 - 1) < 0.05)) else ""
+    _check(
+        df,
+        vis & ~((sun_au >= lo) & (sun_au <= hi)),
+        "sun_x_m",
+        f"puts the Sun {np.nanmin(np.where(vis, sun_au, np.nan)):.3g} AU from the object; "
+        f"it must be {lo}–{hi} AU{km}",
+    )
+    if frame != "GCRS":
+        return
+    for body, name in (("rso", "object"), ("obs", "observer")):
+        r_m = np.linalg.norm(pos[body], axis=1)
+        km = KM_HINT if np.any(vis & (r_m < R_EARTH_M / 100)) else ""
+        _check(
+            df,
+            vis & ~(r_m >= MIN_GEOCENTRIC_M),
+            f"{body}_x_m",
+            f"puts the {name} inside the Earth (geocentric distance < "
+            f"{MIN_GEOCENTRIC_M:.3g} m){km}; GCRS positions are metres from the Earth's centre",
+        )
+
+
 def _check(df, bad: np.ndarray, column: str, message: str):
     if np.any(bad):
         row = int(np.flatnonzero(bad)[0])
         value = df[column].iloc[row] if column in df.columns else None
+        value = value.item() if isinstance(value, np.generic) else value
         raise TableError(
             f"{_where(df)}: column {column!r} = {value!r} at {_row_hint(df, row)} {message} "
             f"({int(np.count_nonzero(bad))} row(s) affected)"
@@ -275,6 +342,8 @@ def read_lightcurve(path: str | Path) -> pd.DataFrame:
     df = read_table(path)
     missing = [c for c in LIGHTCURVE_COLUMNS if c not in df.columns]
     if missing:
-        raise TableError(f"{path}: missing light-curve column(s) {', '.join(missing)}")
-    df["visible"] = _bool_column(df, "visible")
+        raise TableError(
+            f"{path}: missing light-curve column(s) {', '.join(missing)}{separator_hint(df)}"
+        )
+    df["visible"] = bool_column(df, "visible")
     return df

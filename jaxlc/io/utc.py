@@ -7,6 +7,8 @@ command line, always as ISO 8601 (any offset; none means UTC).
 
 from __future__ import annotations
 
+import re
+
 import pandas as pd
 
 from jaxlc.errors import JaxlcError
@@ -17,23 +19,39 @@ EXAMPLE = "2019-07-07T12:00:00Z"
 def parse_utc(values, where: str = "utc", error: type[Exception] = JaxlcError) -> pd.DatetimeIndex:
     """Parse ISO 8601 times (a sequence) to a tz-aware UTC index.
 
+    Strict: every value must be a date and time written out (pandas' words
+    ``now``/``today`` would make results depend on the wall clock, and empty
+    or ``NaT`` values would become missing times).
+
     Raises:
         ``error``: naming ``where`` and the first value that is not a time.
     """
     series = pd.Series(values, dtype=object)
+    written = series.astype(str).str.match(_DATE)
     try:
-        return pd.DatetimeIndex(pd.to_datetime(series, utc=True, format="ISO8601"))
+        times = pd.DatetimeIndex(pd.to_datetime(series, utc=True, format="ISO8601"))
+        bad = ~written.to_numpy() | times.isna()
     except (ValueError, TypeError, OverflowError):
-        pass
+        times, bad = None, None
     for i, v in enumerate(series):
+        if bad is not None and not bad[i]:
+            continue
         try:
-            pd.to_datetime(pd.Series([v], dtype=object), utc=True, format="ISO8601")
+            ok = written.iloc[i] and not pd.isna(
+                pd.to_datetime(pd.Series([v], dtype=object), utc=True, format="ISO8601")[0]
+            )
         except (ValueError, TypeError, OverflowError):
+            ok = False
+        if not ok:
             row = "" if len(series) == 1 else f" (row {i})"
-            raise error(
-                f"{where} = {v!r}{row} is not an ISO 8601 UTC time like {EXAMPLE}"
-            ) from None
-    raise error(f"{where}: cannot read the times as ISO 8601 UTC (e.g. {EXAMPLE})")
+            raise error(f"{where} = {v!r}{row} is not an ISO 8601 UTC time like {EXAMPLE}")
+    if times is None:
+        raise error(f"{where}: cannot read the times as ISO 8601 UTC (e.g. {EXAMPLE})")
+    return times
+
+
+#: A written-out date: four-digit year, month and day (then anything pandas' ISO 8601 parser takes).
+_DATE = re.compile(r"\s*\d{4}-?\d{2}-?\d{2}")
 
 
 def utc_timestamp(value, where: str = "utc", error: type[Exception] = JaxlcError) -> pd.Timestamp:

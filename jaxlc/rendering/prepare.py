@@ -38,7 +38,7 @@ import pandas as pd
 
 from jaxlc.body.facet_model import facet_model, pad_facets
 from jaxlc.body.mesh import Facets
-from jaxlc.body.shadow import ShadowSettings, shadow_data, shadow_table
+from jaxlc.body.shadow import ShadowSettings, reduced_resolution, shadow_data, shadow_table
 from jaxlc.errors import JaxlcError
 from jaxlc.rendering.adaptive import (
     Curve,
@@ -263,9 +263,14 @@ def prepare(
     if not isinstance(scene, Scene):
         scene = load_scene(scene)
     geo, table = as_geometry(geometry, scene.exposure_s)
+    check_far_field(scene, geo, "geometry" if table is None else table.attrs.get("source", ""))
     # The plan is the whole light curve's (its visible rows), whatever subset
     # is rendered: a fit of some of the rows samples them as a render of all does.
     plan = make_plan(scene, geo, options or scene.render, facets=facets)
+    if plan.shadow is not None:  # a large mesh's table is coarser: say so
+        mesh, own = scene.body
+        note = reduced_resolution(mesh, own if facets is None else facets, plan.shadow)
+        plan = dataclasses.replace(plan, shadow_reason=plan.shadow_reason + note)
     if rows is None:
         rows = np.flatnonzero(geo.visible)
     else:
@@ -292,6 +297,28 @@ def prepare(
     return Prepared(
         scene, geo, plan, obj, exposures, inputs, precision, table, options or scene.render, t0
     )
+
+
+#: The facet model takes one direction to the Sun and one to the observer for the
+#: whole body (parallel rays): the observer must be this many object radii away.
+FAR_FIELD_RADII = 100.0
+
+
+def check_far_field(scene: Scene, geo: GeometryArrays, where: str = "geometry") -> None:
+    """Refuse visible rows whose observer is too close for parallel rays (``FAR_FIELD_RADII``)."""
+    if not np.any(geo.visible):
+        return
+    radius_m = scene.scale * float(np.nanmax(np.linalg.norm(scene.body[0].vertices_m, axis=1)))
+    near = geo.visible & ~(geo.range_m >= FAR_FIELD_RADII * radius_m)
+    if np.any(near):
+        row = int(np.flatnonzero(near)[0])
+        raise JaxlcError(
+            f"{where or 'geometry'}: row {row}: the observer is {geo.range_m[row]:.3g} m from "
+            "the object, "
+            f"within {FAR_FIELD_RADII:g} × its radius ({radius_m:.3g} m) — the facet model "
+            f"assumes a distant observer (parallel rays); check the obs_*_m columns' units "
+            f"({int(np.count_nonzero(near))} row(s) affected)"
+        )
 
 
 def with_exposures(prepared: Prepared, exposures: Exposures, pad_rows: bool = False) -> Prepared:
