@@ -16,7 +16,7 @@ import dataclasses
 
 import numpy as np
 
-from jaxlc.body.shadow import ShadowSettings
+from jaxlc.body.shadow import ShadowSettings, reduced_resolution
 from jaxlc.rendering.blur import (
     BlurChoice,
     choose_subsamples,
@@ -76,6 +76,7 @@ def make_plan(scene, geo, options: RenderOptions | None = None, facets=None) -> 
         facets: facets to plan for instead of the mesh's own (a coarse model).
     """
     options = options or RenderOptions()
+    own_facets = facets
     facets = scene.facets if facets is None else facets
     materials = scene.materials_for(facets.part_names)
     shadowable = int(np.count_nonzero(facets.can_shadow))
@@ -90,6 +91,8 @@ def make_plan(scene, geo, options: RenderOptions | None = None, facets=None) -> 
             f"{s.grid}×{s.grid} direction grid, sub-points every {s.spacing:g} × object size "
             f"(≤ {s.max_subpoints} per facet), {s.interpolation}"
         )
+        mesh, own = scene.body  # a large mesh's table is coarser: say so
+        why += reduced_resolution(mesh, own if own_facets is None else own_facets, s)
         shadow = s
     idx = np.flatnonzero(geo.visible)
     blur, blur_reason = choose_blur(

@@ -38,7 +38,7 @@ import pandas as pd
 
 from jaxlc.body.facet_model import facet_model, pad_facets
 from jaxlc.body.mesh import Facets
-from jaxlc.body.shadow import ShadowSettings, reduced_resolution, shadow_data, shadow_table
+from jaxlc.body.shadow import ShadowSettings, shadow_data, shadow_table
 from jaxlc.errors import JaxlcError
 from jaxlc.rendering.adaptive import (
     Curve,
@@ -267,10 +267,6 @@ def prepare(
     # The plan is the whole light curve's (its visible rows), whatever subset
     # is rendered: a fit of some of the rows samples them as a render of all does.
     plan = make_plan(scene, geo, options or scene.render, facets=facets)
-    if plan.shadow is not None:  # a large mesh's table is coarser: say so
-        mesh, own = scene.body
-        note = reduced_resolution(mesh, own if facets is None else facets, plan.shadow)
-        plan = dataclasses.replace(plan, shadow_reason=plan.shadow_reason + note)
     if rows is None:
         rows = np.flatnonzero(geo.visible)
     else:
