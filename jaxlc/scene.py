@@ -148,6 +148,11 @@ class Scene:
         return self.body[0].scaled(self.scale)
 
     @functools.cached_property
+    def radius_m(self) -> float:
+        """The object's radius about its body origin (m, at the scene's scale; finite vertices)."""
+        return self.scale * float(np.nanmax(np.linalg.norm(self.body[0].vertices_m, axis=1)))
+
+    @functools.cached_property
     def facets(self) -> Facets:
         """The facets at the scene's scale (metres, m²)."""
         return self.body[1].scaled(self.scale)

@@ -185,7 +185,7 @@ def check_extremes(config: DatasetConfig) -> None:
         if not isinstance(g, SyntheticSource):
             continue
         # ``scene`` is the high ends' (the largest object).
-        radius_m = scene.scale * float(np.max(np.linalg.norm(scene.body[0].vertices_m, axis=1)))
+        radius_m = scene.radius_m
         closest_m = min(g.range_start_m[0], (g.range_end_m or g.range_start_m)[0])
         if closest_m < FAR_FIELD_RADII * radius_m:
             raise DatasetError(

@@ -304,7 +304,7 @@ def check_far_field(scene: Scene, geo: GeometryArrays, where: str = "geometry") 
     """Refuse visible rows whose observer is too close for parallel rays (``FAR_FIELD_RADII``)."""
     if not np.any(geo.visible):
         return
-    radius_m = scene.scale * float(np.nanmax(np.linalg.norm(scene.body[0].vertices_m, axis=1)))
+    radius_m = scene.radius_m
     near = geo.visible & ~(geo.range_m >= FAR_FIELD_RADII * radius_m)
     if np.any(near):
         row = int(np.flatnonzero(near)[0])
