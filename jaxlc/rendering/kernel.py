@@ -81,6 +81,12 @@ def time_chunk(n_facets: int) -> int:
     return int(min(1024, max(8, 1 << max(3, c.bit_length() - 1))))
 
 
+def _inverse_rotate(r, x):
+    """Rᵀ x for (T, 3, 3) rotations and (T, 3) vectors, written out elementwise: a
+    batched 3 × 3 ``dot_general`` is a slow library call per instant on the CPU."""
+    return r[:, 0, :] * x[:, 0, None] + r[:, 1, :] * x[:, 1, None] + r[:, 2, :] * x[:, 2, None]
+
+
 def body_intensity(
     obj: SpaceObject, sun_b: Float[Array, "T 3"], obs_b: Float[Array, "T 3"]
 ) -> Float[Array, " T"]:
@@ -141,7 +147,7 @@ def light_curve_intensity(
     def to_body(args):
         t, s, v = args
         r = obj.attitude.rotation(t)  # (chunk, 3, 3) body → inertial
-        return jnp.einsum("tji,tj->ti", r, s), jnp.einsum("tji,tj->ti", r, v)
+        return _inverse_rotate(r, s), _inverse_rotate(r, v)
 
     args = jax.tree_util.tree_map(blocks, (times, sun_dir, obs_dir))
     if obj.shadow is None:
