@@ -26,6 +26,7 @@ from jaxlc.body.attitude import AbstractAttitude, Fixed, Spin
 from jaxlc.body.brdf import AbstractBRDF, ASGlossy, AshikhminShirley, Lambert
 from jaxlc.body.facet_model import FacetModel, facet_model
 from jaxlc.body.mesh import Facets, TriangleMesh, facets_from_mesh, load_mesh
+from jaxlc.body.tumble import Tumble
 from jaxlc.dataset import generate, load_config, open_dataset
 from jaxlc.errors import JaxlcError, MeshError, SceneError, TableError
 from jaxlc.geometry import find_passes, geometry_table, get_site, read_tles, synthetic_geometry
@@ -81,6 +82,7 @@ __all__ = [
     "Spin",
     "TableError",
     "TriangleMesh",
+    "Tumble",
     "__version__",
     "analyse_period",
     "exposure_instants",

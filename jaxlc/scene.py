@@ -14,7 +14,7 @@ file, the key and the allowed range (ARCHITECTURE.md, "Scene file")::
     nu = 100
     nv = 100                                  # optional, default nu (isotropic)
     [attitude]
-    model = "spin"                            # | "fixed"
+    model = "spin"                            # | "fixed" | "tumble" (jaxlc.scene_attitude)
     body_axis = [0, 0, 1]
     pole_ra_deg = 30.0
     pole_dec_deg = 60.0
@@ -34,19 +34,17 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import math
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from jaxlc.body import attitude as att
 from jaxlc.body.brdf import BRDFS, AbstractBRDF
 from jaxlc.body.mesh import Facets, TriangleMesh, load_body
 from jaxlc.errors import SceneError
-from jaxlc.io.toml import Section, in_range, nonzero_vector, read_toml, show
-from jaxlc.io.utc import utc_timestamp
+from jaxlc.io.toml import Section, in_range, nonzero_vector, read_toml
 from jaxlc.rendering.options import RenderOptions, render_options_from_table
+from jaxlc.scene_attitude import AttitudeSpec, parse_attitude
 
 #: Package data: the standard scenes and their meshes.
 DATA = Path(__file__).resolve().parent / "data"
@@ -87,42 +85,6 @@ class MaterialSpec:
 
     part: str
     brdf: AbstractBRDF
-
-
-@dataclasses.dataclass(frozen=True)
-class AttitudeSpec:
-    """The ``[attitude]`` table in scene units (degrees, UTC)."""
-
-    model: str
-    quaternion: tuple[float, ...] | None = None
-    body_axis: tuple[float, ...] | None = None
-    pole_ra_deg: float | None = None
-    pole_dec_deg: float | None = None
-    period_s: float | None = None
-    phase_deg: float = 0.0
-    epoch_utc: pd.Timestamp | None = None
-
-    def rate_rad_s(self) -> float:
-        """Rotation rate of the attitude (rad/s): 2π/period for a spin, 0 when fixed."""
-        return 2.0 * math.pi / self.period_s if self.model == "spin" else 0.0
-
-    def exact_parameters(self) -> dict:
-        """Float64 parameters to pass to ``attitude.times`` (keeps float32 models exact)."""
-        return {"period_s": self.period_s} if self.model == "spin" else {}
-
-    def build(self, origin_utc: pd.Timestamp | None, dtype) -> att.AbstractAttitude:
-        """The attitude model with its time origin at ``origin_utc`` (float64 phase
-        transfer; numpy leaves in ``dtype``)."""
-        dtype = np.dtype(dtype)
-        if self.model == "fixed":
-            return att.Fixed(quaternion=np.asarray(self.quaternion, np.float64).astype(dtype))
-        offset = 0.0
-        if self.epoch_utc is not None and origin_utc is not None:
-            offset = (origin_utc - self.epoch_utc).total_seconds()
-        phase = att.phase_at_offset_deg(self.phase_deg, self.period_s, offset)
-        return att.Spin.from_degrees(
-            self.body_axis, self.pole_ra_deg, self.pole_dec_deg, self.period_s, phase, dtype
-        )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -188,7 +150,18 @@ class Scene:
         phase_deg: float = 0.0,
         epoch_utc: pd.Timestamp | None = None,
     ) -> Scene:
-        """The scene spinning about its ``body_axis`` (body z for a fixed attitude)."""
+        """The scene spinning about its ``body_axis`` (body z for a fixed attitude).
+
+        Raises:
+            SceneError: for a tumble, which has no single spin axis (the spin fit
+                models a uniform spin).
+        """
+        if self.attitude.model == "tumble":
+            raise SceneError(
+                f"{self.source}: [attitude] model = 'tumble' has no single spin axis, and the "
+                "spin fit models a uniform spin; give a scene with model = 'spin' (its "
+                "body_axis) or 'fixed' (body z)"
+            )
         axis = self.attitude.body_axis if self.attitude.model == "spin" else (0.0, 0.0, 1.0)
         spin = AttitudeSpec(
             model="spin",
@@ -244,7 +217,7 @@ def scene_from_dict(data: dict, source: str = "<dict>", base_dir: Path | None = 
         seen.add(m.part)
         materials.append(m)
 
-    attitude = _parse_attitude(top.get("attitude", dict, what="the [attitude] table"), source)
+    attitude = parse_attitude(top.get("attitude", dict, what="the [attitude] table"), source)
     sensor = Section(top.get("sensor", dict, default={}), f"{source}: [sensor]", SceneError)
     exposure = sensor.get(
         "exposure_s", float, default=1.0, check=in_range(*EXPOSURE_RANGE_S), what="seconds"
@@ -286,11 +259,8 @@ def resolve_file(
     raise error(f"{where} = {name!r} not found (looked in: {tried})")
 
 
-#: Spin periods a scene may give (s): 1 ms (1,000 turns per second) to ~30 years.
-PERIOD_RANGE_S = (1e-3, 1e9)
 #: Exposure times a scene may give (s): 1 µs to one hour.
 EXPOSURE_RANGE_S = (1e-6, 3600.0)
-_PERIOD = "spin period in seconds, 0.001 … 1e9"
 _ALBEDO = "reflectance, 0 … 1"
 _EXPONENT = "AS exponent, 0 … 1e6"
 
@@ -324,49 +294,3 @@ def _parse_material(entry, where) -> MaterialSpec:
         brdf = BRDFS[name](rd=rd, rs=rs, nu=nu, nv=nv, tangent=tuple(float(x) for x in tangent))
     sec.finish()
     return MaterialSpec(part=part, brdf=brdf)
-
-
-def _parse_attitude(table, source) -> AttitudeSpec:
-    where = f"{source}: [attitude]"
-    sec = Section(table, where, SceneError)
-    model = sec.get("model", str, what="'spin' or 'fixed'")
-    if model == "fixed":
-        q = sec.get(
-            "quaternion", "vec4", check=nonzero_vector, what="[w, x, y, z], body → inertial"
-        )
-        norm = float(np.linalg.norm(q))
-        if abs(norm - 1.0) > 1e-3:
-            raise SceneError(
-                f"{where}: quaternion = {show(q)} has norm {norm:.6g}; give a unit quaternion "
-                f"[w, x, y, z] (e.g. {show(q / norm)})"
-            )
-        spec = AttitudeSpec(model="fixed", quaternion=tuple(float(x) for x in q / norm))
-    elif model == "spin":
-        axis = sec.get(
-            "body_axis", "vec3", check=nonzero_vector, what="spin axis in the body frame"
-        )
-        ra = sec.get("pole_ra_deg", float, check=in_range(-360.0, 360.0), what="degrees")
-        dec = sec.get("pole_dec_deg", float, check=in_range(-90.0, 90.0), what="degrees")
-        period = sec.get("period_s", float, check=in_range(*PERIOD_RANGE_S), what=_PERIOD)
-        phase = sec.get("phase_deg", float, default=0.0, check=in_range(-1e6, 1e6), what="degrees")
-        epoch = sec.get("epoch_utc", str, default=None, what="ISO 8601 UTC")
-        spec = AttitudeSpec(
-            model="spin",
-            body_axis=tuple(float(x) for x in axis / np.linalg.norm(axis)),
-            pole_ra_deg=ra,
-            pole_dec_deg=dec,
-            period_s=period,
-            phase_deg=phase,
-            epoch_utc=None
-            if epoch is None
-            else utc_timestamp(epoch, f"{where}: epoch_utc", SceneError),
-        )
-    elif model == "tumble":
-        raise SceneError(
-            f"{where}: model = 'tumble' (torque-free tumbling) is not implemented yet; "
-            "use 'spin' or 'fixed'"
-        )
-    else:
-        raise SceneError(f"{where}: model = {model!r} must be 'spin' or 'fixed'")
-    sec.finish()
-    return spec

@@ -13,6 +13,7 @@ from helpers import rotation_matrix_from_quaternion, unit
 from jaxlc.body.attitude import (
     Fixed,
     Spin,
+    matrix_to_quaternion,
     phase_at_offset_deg,
     quaternion_to_matrix,
     reference_direction,
@@ -30,6 +31,15 @@ def test_quaternion_matches_rodrigues():
         for q in rng.normal(size=(50, 4)):
             got = np.asarray(quaternion_to_matrix(jnp.asarray(q)))
             np.testing.assert_allclose(got, rotation_matrix_from_quaternion(q), atol=1e-12)
+
+
+def test_matrix_to_quaternion_round_trips():
+    """Every branch of Shepperd's method (w, x, y or z largest), sign w ≥ 0."""
+    rng = np.random.default_rng(1)
+    qs = np.concatenate([rng.normal(size=(40, 4)), np.eye(4), -np.eye(4)])
+    for q in qs / np.linalg.norm(qs, axis=1, keepdims=True):
+        got = matrix_to_quaternion(rotation_matrix_from_quaternion(q))
+        assert got[0] >= 0 and min(np.abs(got - q).max(), np.abs(got + q).max()) < 1e-14
 
 
 def test_quaternion_convention_body_to_inertial():

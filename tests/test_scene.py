@@ -92,9 +92,9 @@ BAD = [
     (BASE.replace("nu = 100", "nu = nan"), "must be finite"),
     (
         BASE.replace('model = "spin"', 'model = "wobble"'),
-        "model = 'wobble' must be 'spin' or 'fixed'",
+        "model = 'wobble' must be one of 'spin', 'fixed', 'tumble'",
     ),
-    (BASE.replace('model = "spin"', 'model = "tumble"'), "not implemented yet"),
+    (BASE.replace('model = "spin"', 'model = "tumble"'), "missing required key 'inertia_kg_m2'"),
     (BASE + "\n[sensor]\nexposure_s = 0\n", r"exposure_s = 0\.0 is outside \[1e-06, 3600\]"),
     (BASE + "\n[sensor]\nexposure = 1\n", "unknown key 'exposure'"),
     (BASE + "\n[rendering]\nfast = true\n", "unknown key 'rendering'; did you mean 'render'"),

@@ -4,8 +4,9 @@ Every model is an ``equinox.Module`` with ``rotation(times) -> (T, 3, 3)``
 matrices R such that ``x_inertial = R @ x_body``; times count seconds from the
 model's time origin (the first row of the geometry table when built by
 :func:`jaxlc.rendering.render.render`) and are prepared on the host by ``times(t_s)``.
-New models (e.g. torque-free tumbling) subclass :class:`AbstractAttitude` and
-implement ``rotation`` (and ``times`` if float32 needs help with precision).
+New models subclass :class:`AbstractAttitude` and implement ``rotation`` (and
+``times`` if float32 needs help with precision); torque-free tumbling is
+:class:`jaxlc.body.tumble.Tumble`.
 
 ``Fixed(quaternion)``
     constant rotation, quaternion ``[w, x, y, z]`` (scalar first, body →
@@ -48,14 +49,15 @@ class AbstractAttitude(eqx.Module):
         ``exact`` may carry float64 values of parameters the model holds in
         float32 (e.g. ``period_s``); models that need none ignore it.
         """
-        return np.asarray(t_s, dtype=np.float64).astype(_dtype(self))
+        return np.asarray(t_s, dtype=np.float64).astype(leaf_dtype(self))
 
     @abc.abstractmethod
     def rotation(self, times) -> Float[Array, "T 3 3"]:
         """(T, 3, 3) body→inertial matrices at ``times`` (from :meth:`times`, or seconds)."""
 
 
-def _dtype(module: eqx.Module) -> np.dtype:
+def leaf_dtype(module: eqx.Module) -> np.dtype:
+    """The dtype of a model's first array leaf (float32 when it has none)."""
     leaves = [x for x in jax.tree_util.tree_leaves(module) if hasattr(x, "dtype")]
     return np.dtype(leaves[0].dtype) if leaves else np.dtype(np.float32)
 
@@ -72,6 +74,35 @@ def quaternion_to_matrix(q: Float[Array, "... 4"]) -> Float[Array, "... 3 3"]:
         ],
         -2,
     )
+
+
+def matrix_to_quaternion(r) -> np.ndarray:
+    """Scalar-first unit quaternion ``[w, x, y, z]`` (w ≥ 0) of a rotation matrix (3, 3)
+    (host side, float64; Shepperd's method: the largest of w, x, y, z first)."""
+    r = np.asarray(r, dtype=np.float64)
+    trace = np.trace(r)
+    diag = np.diag(r)
+    k = int(np.argmax([trace, *diag]))
+    if k == 0:
+        w = 0.5 * math.sqrt(max(1.0 + trace, 0.0))
+        q = [
+            w,
+            (r[2, 1] - r[1, 2]) / (4 * w),
+            (r[0, 2] - r[2, 0]) / (4 * w),
+            (r[1, 0] - r[0, 1]) / (4 * w),
+        ]
+    else:
+        i = k - 1
+        j, l = (i + 1) % 3, (i + 2) % 3
+        v = 0.5 * math.sqrt(max(1.0 + 2 * diag[i] - trace, 0.0))
+        q = [0.0, 0.0, 0.0, 0.0]
+        q[0] = (r[l, j] - r[j, l]) / (4 * v)
+        q[1 + i] = v
+        q[1 + j] = (r[j, i] + r[i, j]) / (4 * v)
+        q[1 + l] = (r[l, i] + r[i, l]) / (4 * v)
+    q = np.asarray(q)
+    q = q / np.linalg.norm(q)
+    return -q if q[0] < 0 else q
 
 
 class Fixed(AbstractAttitude):
@@ -166,7 +197,7 @@ class Spin(AbstractAttitude):
         t = np.asarray(t_s, dtype=np.float64)
         period = float(self.period_s) if period_s is None else float(period_s)
         turns = np.floor(t / period)
-        dtype = _dtype(self)
+        dtype = leaf_dtype(self)
         return SpinTimes(
             turns=turns.astype(dtype),
             remainder_s=(t - turns * period).astype(dtype),

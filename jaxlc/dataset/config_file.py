@@ -82,12 +82,12 @@ from jaxlc.io.utc import format_utc, utc_timestamp
 from jaxlc.rendering.options import RenderOptions, render_options_from_table
 from jaxlc.scene import (
     EXPOSURE_RANGE_S,
-    PERIOD_RANGE_S,
     MaterialSpec,
     Scene,
     load_scene,
     resolve_file,
 )
+from jaxlc.scene_attitude import PERIOD_RANGE_S
 
 #: Sample spacing a dataset may use (s): 1 µs to one day.
 CADENCE_RANGE_S = (1e-6, 86_400.0)

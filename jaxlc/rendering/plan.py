@@ -7,6 +7,9 @@
   exposure needs (:mod:`jaxlc.rendering.blur`);
 * rows: invisible rows are not rendered.
 
+The plan also says which attitude turns the body (a tumble's mode and its two
+periods), since its rotation rate sets the blur.
+
 ``jaxlc render --explain`` prints :meth:`RenderPlan.explain`.
 """
 
@@ -41,6 +44,7 @@ class RenderPlan:
     blur_reason: str
     rows: int
     rows_rendered: int
+    attitude: str = ""
 
     @property
     def subsamples(self) -> int:
@@ -62,6 +66,8 @@ class RenderPlan:
                 else ""
             ),
         ]
+        if self.attitude:
+            lines.append(f"attitude   {self.attitude}")
         return "\n".join(lines)
 
 
@@ -111,6 +117,7 @@ def make_plan(scene, geo, options: RenderOptions | None = None, facets=None) -> 
         blur_reason=blur_reason,
         rows=len(geo.visible),
         rows_rendered=len(idx),
+        attitude=scene.attitude.describe(),
     )
 
 
