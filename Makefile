@@ -26,7 +26,7 @@ $(BLENDER_STAMP): requirements/blender.txt
 		-r requirements/blender.txt
 	@touch $@
 
-## demo: a tumbling Falcon 9 second stage over a real 20-minute pass seen from Mt Stromlo
+## demo: a Falcon 9 second stage spinning end over end over a real 20-minute pass seen from Mt Stromlo
 demo: setup
 	$(BIN)/jaxlc passes --tle data/tle/falcon9_rb.tle --norad 45921 --site mt-stromlo \
 		--start 2020-08-10T00:00:00Z --days 1

@@ -151,35 +151,6 @@ def material_spec(part: str, brdf: AbstractBRDF) -> dict:
     raise JaxlcError(f"no Cycles material for {type(brdf).__name__}")
 
 
-def matrix_to_quaternion(r: np.ndarray) -> np.ndarray:
-    """(…, 3, 3) rotation matrices → (…, 4) unit quaternions [w, x, y, z] (w ≥ 0)."""
-    r = np.asarray(r, dtype=np.float64)
-    m = r.reshape(-1, 3, 3)
-    q = np.empty((len(m), 4))
-    for k, a in enumerate(m):
-        trace = a[0, 0] + a[1, 1] + a[2, 2]
-        if trace > 0:
-            s = 2.0 * math.sqrt(1.0 + trace)
-            q[k] = [
-                0.25 * s,
-                (a[2, 1] - a[1, 2]) / s,
-                (a[0, 2] - a[2, 0]) / s,
-                (a[1, 0] - a[0, 1]) / s,
-            ]
-        else:
-            i = int(np.argmax([a[0, 0], a[1, 1], a[2, 2]]))
-            j, l = (i + 1) % 3, (i + 2) % 3
-            s = 2.0 * math.sqrt(1.0 + a[i, i] - a[j, j] - a[l, l])
-            v = np.zeros(3)
-            v[i] = 0.25 * s
-            v[j] = (a[j, i] + a[i, j]) / s
-            v[l] = (a[l, i] + a[i, l]) / s
-            q[k] = [(a[l, j] - a[j, l]) / s, *v]
-    q *= np.where(q[:, :1] < 0, -1.0, 1.0)
-    q /= np.linalg.norm(q, axis=1, keepdims=True)
-    return q.reshape(*r.shape[:-2], 4)
-
-
 def write_job(
     job_dir: Path,
     parts: list[tuple[str, np.ndarray, np.ndarray]],

@@ -31,8 +31,9 @@ import numpy as np
 import pandas as pd
 
 import jaxlc
-from calibrate.job import BlenderOptions, material_spec, matrix_to_quaternion, write_job
+from calibrate.job import BlenderOptions, material_spec, write_job
 from calibrate.runner import default_timeout_s, run_worker
+from jaxlc.body.attitude import matrix_to_quaternion
 from jaxlc.rendering import photometry
 
 #: The seed's calibration plate: 1 × 1 m, white Lambert, both sides.

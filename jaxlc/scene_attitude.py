@@ -158,7 +158,7 @@ def parse_attitude(table, source) -> AttitudeSpec:
         inertia = sec.get(
             "inertia_kg_m2",
             "vec3",
-            check=_principal_moments,
+            check=principal_moments_problem,
             what="principal moments along body x, y, z, kg m²",
         )
         omega = sec.get(
@@ -198,7 +198,9 @@ def _epoch(sec: Section, where: str) -> pd.Timestamp | None:
     return None if epoch is None else utc_timestamp(epoch, f"{where}: epoch_utc", SceneError)
 
 
-def _principal_moments(inertia) -> str | None:
+def principal_moments_problem(inertia) -> str | None:
+    """What is wrong with (3,) principal moments of inertia, or None when they can be a
+    rigid body's (all > 0, the triangle inequality)."""
     if not np.all(inertia > 0):
         return "must all be > 0 (principal moments of inertia)"
     for k in range(3):

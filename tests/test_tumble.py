@@ -23,7 +23,7 @@ from scipy.integrate import solve_ivp
 import jaxlc
 from jaxlc.body import elliptic
 from jaxlc.body.attitude import Spin, matrix_to_quaternion
-from jaxlc.body.tumble import Tumble
+from jaxlc.body.tumble import Tumble, tumble_from_invariants
 from jaxlc.errors import SceneError
 from jaxlc.rendering.observation import geometry_arrays
 from jaxlc.rendering.plan import make_plan
@@ -351,6 +351,41 @@ def test_vmap_over_tumbles_matches_one_at_a_time():
         )
         for k, (m, t) in enumerate(zip(models, times, strict=True)):
             np.testing.assert_allclose(batched[k], np.asarray(_rotation(m, t)), atol=1e-12)
+
+
+@pytest.mark.parametrize("mode", ["SAM", "LAM"])
+def test_tumble_from_invariants_has_them(mode):
+    """Mode, excitation (2E/L² from ω directly), precession period, L's direction
+    (R I ω from the quaternion directly) and the polhode phase (the same motion
+    started later) are what was asked for."""
+    rng = np.random.default_rng(7 if mode == "SAM" else 8)
+    for _ in range(6):
+        inertia, _ = random_state(int(rng.integers(1000)), mode)
+        x, period = rng.uniform(0.0, 0.95), 10 ** rng.uniform(0.5, 4.0)
+        ra, dec, about, phase = rng.uniform(0, 360), rng.uniform(-89, 89), *rng.uniform(0, 1, 2)
+        sense = int(rng.choice([-1, 1]))
+        t = tumble_from_invariants(inertia, mode, x, period, ra, dec, 360 * about, phase, sense)
+        w, q = np.asarray(t.omega_body_rad_s), np.asarray(t.quaternion)
+        i1, i2, i3 = np.sort(inertia)
+        e = np.sum(inertia * w**2) / np.sum((inertia * w) ** 2)  # 2E / L²
+        sam = (e - 1 / i3) / (1 / i2 - 1 / i3)
+        got = sam if mode == "SAM" else (1 / i1 - e) / (1 / i1 - 1 / i2)
+        assert t.mode() == mode and got == pytest.approx(x, abs=1e-12)
+        assert t.excitation() == pytest.approx(x, abs=1e-12)
+        assert t.periods_s()[1] == pytest.approx(period, rel=1e-12)
+        ell = rotation_matrix_from_quaternion(q) @ (inertia * w)
+        want = [
+            math.cos(math.radians(dec)) * math.cos(math.radians(ra)),
+            math.cos(math.radians(dec)) * math.sin(math.radians(ra)),
+            math.sin(math.radians(dec)),
+        ]
+        np.testing.assert_allclose(ell / np.linalg.norm(ell), want, atol=1e-12)
+        start = tumble_from_invariants(inertia, mode, x, period, ra, dec, 0.0, 0.0, sense)
+        body = start.periods_s()[0]
+        _, w_later = integrate(inertia, start.omega_body_rad_s, [1, 0, 0, 0], [0, phase * body])
+        np.testing.assert_allclose(w, w_later[1], rtol=0, atol=1e-9 * np.abs(w).max())
+    with pytest.raises(ValueError, match="excitation"):
+        tumble_from_invariants([1, 2, 3], mode, 1.0, 10.0, 0.0, 0.0)
 
 
 def test_moving_the_time_origin_is_exact():

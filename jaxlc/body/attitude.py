@@ -77,9 +77,17 @@ def quaternion_to_matrix(q: Float[Array, "... 4"]) -> Float[Array, "... 3 3"]:
 
 
 def matrix_to_quaternion(r) -> np.ndarray:
-    """Scalar-first unit quaternion ``[w, x, y, z]`` (w ≥ 0) of a rotation matrix (3, 3)
-    (host side, float64; Shepperd's method: the largest of w, x, y, z first)."""
+    """Scalar-first unit quaternions ``[w, x, y, z]`` (w ≥ 0) of rotation matrices:
+    (…, 3, 3) → (…, 4) (host side, float64; Shepperd's method: the largest of w, x, y,
+    z is found first, so every branch divides by at least ½)."""
     r = np.asarray(r, dtype=np.float64)
+    out = np.empty((*r.shape[:-2], 4))
+    for idx in np.ndindex(*r.shape[:-2]):
+        out[idx] = _one_quaternion(r[idx])
+    return out
+
+
+def _one_quaternion(r) -> np.ndarray:
     trace = np.trace(r)
     diag = np.diag(r)
     k = int(np.argmax([trace, *diag]))

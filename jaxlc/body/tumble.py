@@ -37,6 +37,7 @@ from jaxtyping import Array, Float
 
 from jaxlc.body.attitude import (
     AbstractAttitude,
+    Spin,
     leaf_dtype,
     matrix_to_quaternion,
     quaternion_to_matrix,
@@ -162,6 +163,18 @@ class Tumble(AbstractAttitude):
             return "separatrix"
         return "SAM" if bool(motion.sam) else "LAM"
 
+    def excitation(self) -> float:
+        """How far the motion is from a principal-axis spin, in energy: 0 at the
+        mode's spin (about the largest moment in SAM, the smallest in LAM), 1 at the
+        separatrix (:func:`tumble_from_invariants`); float64 on the host."""
+        inertia = np.asarray(self.inertia_kg_m2, np.float64)
+        omega = np.asarray(self.omega_body_rad_s, np.float64)
+        i1, i2, i3 = np.sort(inertia)
+        e = float(np.sum(inertia * omega**2) / np.sum((inertia * omega) ** 2))  # 2E / L²
+        if self.mode() == "SAM":
+            return _ratio(e - 1.0 / i3, 1.0 / i2 - 1.0 / i3)
+        return _ratio(1.0 / i1 - e, 1.0 / i1 - 1.0 / i2)
+
     def periods_s(self) -> tuple[float, float]:
         """(body_period_s, precession_period_s): T_ω = 4K/|ν|, the period of ω in the
         body frame (∞ for a uniform rotation), and 2π T_ω/Δψ, the mean period of
@@ -205,3 +218,79 @@ class Tumble(AbstractAttitude):
 
 
 _evaluate64 = jax.jit(Tumble._evaluate)
+
+#: The two tumbling modes: short-axis (about the largest moment) and long-axis.
+TUMBLE_MODES = ("SAM", "LAM")
+
+
+def _ratio(num: float, den: float) -> float:
+    return min(max(num / den, 0.0), 1.0) if den > 0 else 0.0
+
+
+def tumble_from_invariants(
+    inertia_kg_m2,
+    mode: str,
+    excitation: float,
+    precession_period_s: float,
+    l_ra_deg: float,
+    l_dec_deg: float,
+    about_l_deg: float = 0.0,
+    polhode_phase: float = 0.0,
+    sense: int = 1,
+) -> Tumble:
+    """The tumble with given invariants, at a given point of its motion (host side,
+    float64 leaves): how datasets draw tumbling bodies.
+
+    With the moments sorted I₁ ≤ I₂ ≤ I₃ and E, L the energy and angular
+    momentum, 2E/L² runs from 1/I₃ (a spin about the largest moment) through 1/I₂
+    (the separatrix) to 1/I₁ (a spin about the smallest); ``excitation`` is the
+    fraction of the mode's side of that range from its spin to the separatrix.
+
+    Args:
+        inertia_kg_m2: (3,) principal moments along body x, y, z (any scale).
+        mode: ``"SAM"`` or ``"LAM"``.
+        excitation: in [0, 1): 0 a principal-axis spin, → 1 the separatrix.
+        precession_period_s: the mean period of the rotation about L
+            (:meth:`Tumble.periods_s`), > 0 (s).
+        l_ra_deg, l_dec_deg: the direction of L (deg).
+        about_l_deg: the body's rotation about L at t = 0 (deg).
+        polhode_phase: in [0, 1): where the body is on its polhode at t = 0, as a
+            fraction of T_ω from the point where L has no component along I₂.
+        sense: ±1: which of the mode's two polhodes (the sign of L along I₃ in
+            SAM, along I₁ in LAM).
+
+    Example:
+        >>> t = tumble_from_invariants([1, 2.5, 3], "SAM", 0.4, 300.0, 30.0, 60.0)
+        >>> t.mode(), t.periods_s()[1], t.angular_momentum_radec_deg()  # SAM, 300 s, (30, 60)
+    """
+    inertia = np.asarray(inertia_kg_m2, np.float64)
+    if mode not in TUMBLE_MODES:
+        raise ValueError(f"tumble_from_invariants: mode = {mode!r} must be 'SAM' or 'LAM'")
+    if not 0.0 <= excitation < 1.0:
+        raise ValueError(f"tumble_from_invariants: excitation = {excitation!r} is outside [0, 1)")
+    order = np.argsort(inertia, kind="stable")
+    i1, i2, i3 = inertia[order]
+    if mode == "SAM":
+        two_e = 1.0 / i3 + excitation * (1.0 / i2 - 1.0 / i3)
+    else:
+        two_e = 1.0 / i1 - excitation * (1.0 / i1 - 1.0 / i2)
+    # unit L on the polhode where L₂ = 0: L₁²/I₁ + L₃²/I₃ = 2E, L₁² + L₃² = 1
+    l1_sq = _ratio(two_e - 1.0 / i3, 1.0 / i1 - 1.0 / i3)
+    l1, l3 = math.sqrt(l1_sq), math.sqrt(1.0 - l1_sq)
+    sign = 1.0 if sense >= 0 else -1.0
+    l1, l3 = (l1, sign * l3) if mode == "SAM" else (sign * l1, l3)
+    omega = np.zeros(3)
+    omega[order] = np.array([l1, 0.0, l3]) / np.array([i1, i2, i3])
+    # every time of a torque-free motion scales as 1/|ω|
+    start = Tumble.from_state(inertia, omega, [1.0, 0.0, 0.0, 0.0], np.float64)
+    omega = omega * start.periods_s()[1] / float(precession_period_s)
+    start = Tumble.from_state(inertia, omega, [1.0, 0.0, 0.0, 0.0], np.float64)
+    if polhode_phase:
+        start = start.at_offset(float(polhode_phase) * float(host_motion(inertia, omega).period_s))
+    omega = np.asarray(start.omega_body_rad_s, np.float64)
+    # orient: body L̂ onto the inertial direction, turned about it by about_l_deg
+    with jax.enable_x64(True):
+        ell = inertia * omega
+        align = Spin.from_degrees(ell, l_ra_deg, l_dec_deg, 1.0, about_l_deg, np.float64)
+        rotation = np.asarray(align.rotation(np.zeros(1)))[0]
+    return Tumble.from_state(inertia, omega, matrix_to_quaternion(rotation), np.float64)

@@ -47,6 +47,33 @@ class MaterialPrior:
 
 
 @dataclasses.dataclass(frozen=True)
+class TumblePrior:
+    """A ``[class.tumble]`` table: the class tumbles torque-free instead of spinning.
+
+    Attributes:
+        inertia_kg_m2: per body axis x, y, z a (low, high) principal moment
+            (log-uniform; any common scale; every corner of the box obeys the
+            triangle inequality).
+        mode: ``"SAM"``, ``"LAM"`` or ``"any"`` (each with probability ½).
+        excitation: (low, high) in [0, 1) (uniform): 0 a principal-axis spin,
+            → 1 the separatrix (:func:`jaxlc.body.tumble.tumble_from_invariants`).
+
+    The class's ``period_s`` is then the precession period (the mean period of
+    the rotation about L), its pole the direction of L.
+    """
+
+    inertia_kg_m2: tuple[tuple[float, float], ...]
+    mode: str = "any"
+    excitation: tuple[float, float] = (0.0, 0.9)
+
+    def corners(self):
+        """The 8 corners of the inertia box, (3,) tuples."""
+        import itertools
+
+        return list(itertools.product(*self.inertia_kg_m2))
+
+
+@dataclasses.dataclass(frozen=True)
 class ShapeClass:
     """A shape class: mesh, material priors, size and spin priors, render options.
 
@@ -56,10 +83,11 @@ class ShapeClass:
         mesh_scale: the scene's ``[object] scale`` (file units → m; 1 for a bare mesh).
         weight: relative frequency.
         scale: (low, high) size factor on top of ``mesh_scale`` (uniform).
-        period_s: (low, high) spin period (log-uniform).
-        body_axis: spin axis in the body frame (unit).
+        period_s: (low, high) spin period (log-uniform); a tumble's precession period.
+        body_axis: spin axis in the body frame (unit); None for a tumbling class.
         materials: material priors, one per part or ``"*"``.
         render: shadows and blur options (a scene's ``[render]`` table).
+        tumble: the class tumbles (torque-free) with these priors; None: it spins.
     """
 
     name: str
@@ -68,9 +96,10 @@ class ShapeClass:
     weight: float
     scale: tuple[float, float]
     period_s: tuple[float, float]
-    body_axis: tuple[float, float, float]
+    body_axis: tuple[float, float, float] | None
     materials: tuple[MaterialPrior, ...]
     render: RenderOptions
+    tumble: TumblePrior | None = None
 
 
 @dataclasses.dataclass(frozen=True)

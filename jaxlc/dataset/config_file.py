@@ -30,6 +30,10 @@ are drawn uniformly, periods, exponents and ranges log-uniformly (see
     nu = [10, 300]                # exponents: log-uniform; nv defaults to nu
     [class.render]                # optional, as a scene's [render] table
     max_subsamples = 64
+    # [class.tumble]              # optional: tumble torque-free instead of spinning
+    # inertia_kg_m2 = [[0.07, 0.09], [0.95, 1.0], 1.0]  # per body axis (log-uniform)
+    # mode = "any"                # "SAM", "LAM" or "any"; period_s: the precession period
+    # excitation = [0.05, 0.9]    # 0: principal-axis spin … 1: the separatrix (uniform)
 
     [geometry]
     source = "synthetic"          # fixed Sun, observer sweeping phase angle
@@ -54,40 +58,27 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
-
-from jaxlc.body.brdf import BRDFS
 from jaxlc.dataset.config import (
     MAX_COUNT,
     MAX_SHARD_SAMPLES,
     DatasetConfig,
     DatasetError,
-    MaterialPrior,
     NoiseModel,
     PassSource,
-    ShapeClass,
     SyntheticSource,
 )
 from jaxlc.dataset.draw import check_extremes
+from jaxlc.dataset.shape_class import parse_class
 from jaxlc.errors import JaxlcError
 from jaxlc.geometry.observe import Visibility
 from jaxlc.io.toml import (
     Section,
     in_range,
-    nonzero_vector,
     read_toml,
     whole,
 )
 from jaxlc.io.utc import format_utc, utc_timestamp
-from jaxlc.rendering.options import RenderOptions, render_options_from_table
-from jaxlc.scene import (
-    EXPOSURE_RANGE_S,
-    MaterialSpec,
-    Scene,
-    load_scene,
-    resolve_file,
-)
-from jaxlc.scene_attitude import PERIOD_RANGE_S
+from jaxlc.scene import EXPOSURE_RANGE_S, resolve_file
 
 #: Sample spacing a dataset may use (s): 1 µs to one day.
 CADENCE_RANGE_S = (1e-6, 86_400.0)
@@ -152,7 +143,7 @@ def config_from_dict(
     classes = []
     for i, entry in enumerate(entries, 1):
         name = entry.get("name", f"#{i}") if isinstance(entry, dict) else f"#{i}"
-        classes.append(_parse_class(entry, f"{source}: [[class]] #{i} ({name})", base_dir))
+        classes.append(parse_class(entry, f"{source}: [[class]] #{i} ({name})", base_dir))
     names = [c.name for c in classes]
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
@@ -180,124 +171,6 @@ def config_from_dict(
     )
     check_extremes(config)
     return config
-
-
-def _parse_class(entry, where: str, base_dir) -> ShapeClass:
-    sec = Section(entry, where, DatasetError)
-    name = sec.get("name", str, what="label of the class")
-    has_scene, has_mesh = sec.has("scene"), sec.has("mesh")
-    if has_scene == has_mesh:
-        raise DatasetError(f"{where}: give exactly one of 'scene' (a scene file) or 'mesh'")
-    scene = None
-    if has_scene:
-        scene_path = resolve_file(
-            sec.get("scene", str), base_dir, f"{where}: scene", DatasetError, "scenes"
-        )
-        scene = load_scene(scene_path)
-        mesh_path, mesh_scale = scene.mesh_path, scene.scale
-    else:
-        mesh_path = resolve_file(
-            sec.get("mesh", str), base_dir, f"{where}: mesh", DatasetError, "meshes"
-        )
-        mesh_scale = 1.0
-    weight = sec.get(
-        "weight", float, default=1.0, check=in_range(1e-6, 1e6), what="relative frequency"
-    )
-    scale = sec.range("scale", 0.0, 1e6, default=(1.0, 1.0), positive=True, what="size factor")
-    period = sec.range("period_s", *PERIOD_RANGE_S, what="spin period range, seconds")
-    scene_axis = None
-    if scene is not None and scene.attitude.model == "spin":
-        scene_axis = scene.attitude.body_axis
-    axis = sec.get(
-        "body_axis",
-        "vec3",
-        default=... if scene_axis is None else np.asarray(scene_axis),
-        check=nonzero_vector,
-        what="spin axis in the body frame",
-    )
-    axis = tuple(float(x) for x in np.asarray(axis) / np.linalg.norm(axis))
-
-    if sec.has("material"):
-        items = sec.get("material", list)
-        if not items:
-            raise DatasetError(f"{where}: [[class.material]] is empty")
-        materials = [
-            _parse_material(m, f"{where}: [[class.material]] #{j}") for j, m in enumerate(items, 1)
-        ]
-        parts = [m.part for m in materials]
-        dup = sorted({p for p in parts if parts.count(p) > 1})
-        if dup:
-            raise DatasetError(f"{where}: [[class.material]] part {dup[0]!r} is given twice")
-    elif scene is not None:
-        materials = [_prior_from_spec(m) for m in scene.materials]
-    else:
-        raise DatasetError(f"{where}: a class with 'mesh' needs [[class.material]] tables")
-
-    if sec.has("render"):
-        render = render_options_from_table(
-            Section(sec.get("render", dict), f"{where}: [render]", DatasetError)
-        )
-    else:
-        render = scene.render if scene is not None else RenderOptions()
-    sec.finish()
-
-    # Every part must get a material; every named part must exist.
-    probe = Scene(
-        mesh_path=mesh_path,
-        materials=tuple(MaterialSpec(m.part, None) for m in materials),
-        attitude=None,
-        scale=mesh_scale,
-        source=where,
-    )
-    try:
-        probe.materials_for(probe.body[1].part_names)
-    except JaxlcError as exc:
-        raise DatasetError(str(exc)) from None
-    return ShapeClass(
-        name=name,
-        mesh_path=mesh_path,
-        mesh_scale=mesh_scale,
-        weight=weight,
-        scale=scale,
-        period_s=period,
-        body_axis=axis,
-        materials=tuple(materials),
-        render=render,
-    )
-
-
-def _parse_material(entry, where) -> MaterialPrior:
-    sec = Section(entry, where, DatasetError)
-    part = sec.get("part", str, default="*")
-    brdf = sec.get("brdf", str, what=f"one of {', '.join(BRDFS)}")
-    if brdf not in BRDFS:
-        raise DatasetError(f"{where}: brdf = {brdf!r} is not one of {', '.join(BRDFS)}")
-    rd = sec.range("rd", 0.0, 1.0, what="reflectance, 0 … 1")
-    rs = nu = nv = None
-    tangent = (0.0, 0.0, 1.0)
-    if brdf != "lambert":
-        rs = sec.range("rs", 0.0, 1.0, what="reflectance, 0 … 1")
-        nu = sec.range("nu", 0.0, 1e6, what="AS exponent, 0 … 1e6")
-        nv = sec.range("nv", 0.0, 1e6, default=None, what="AS exponent, 0 … 1e6")
-        tangent = sec.get(
-            "tangent", "vec3", default=tangent, check=nonzero_vector, what="body-frame u tangent"
-        )
-        tangent = tuple(float(x) for x in tangent)
-    sec.finish()
-    return MaterialPrior(part=part, brdf=brdf, rd=rd, rs=rs, nu=nu, nv=nv, tangent=tangent)
-
-
-def _prior_from_spec(spec: MaterialSpec) -> MaterialPrior:
-    """A fixed prior from a scene's material."""
-    b = spec.brdf
-    name = next(k for k, v in BRDFS.items() if type(b) is v)
-    fixed = lambda x: (float(x), float(x))  # noqa: E731
-    if name == "lambert":
-        return MaterialPrior(spec.part, name, fixed(b.rd))
-    nv = None if float(b.nv) == float(b.nu) else fixed(b.nv)
-    return MaterialPrior(
-        spec.part, name, fixed(b.rd), fixed(b.rs), fixed(b.nu), nv, tuple(b.tangent)
-    )
 
 
 def _parse_geometry(table, where, base_dir):

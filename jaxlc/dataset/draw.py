@@ -12,6 +12,7 @@ so that :meth:`jaxlc.dataset.store.Dataset.scene` and ``.geometry`` give them ba
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
 
 import numpy as np
@@ -37,6 +38,9 @@ class Curve:
         materials: one scene ``[[material]]`` dict per class material entry.
         geometry: synthetic: the :func:`jaxlc.synthetic_geometry` keyword
             arguments; passes: ``{"pass_id": p, "offset": k}`` (rows of the pool).
+        tumble: a tumbling class's draws (:func:`draw_tumble`), None for a spin;
+            then ``period_s`` is the precession period, the pole L's direction and
+            the phase the rotation about L at the first sample.
     """
 
     index: int
@@ -48,6 +52,7 @@ class Curve:
     phase_deg: float
     materials: tuple[dict, ...]
     geometry: dict
+    tumble: dict | None = None
 
 
 def _uniform(rng, r):
@@ -84,7 +89,8 @@ def draw_curve(config: DatasetConfig, index: int, pass_lengths: np.ndarray | Non
 
     Order of the draws (fixed; a fixed value still takes its draw, so changing
     a range never shifts the others): class, scale, period, pole (z, RA),
-    phase, materials (rd, rs, nu, nv per entry), geometry.
+    phase, materials (rd, rs, nu, nv per entry), geometry, and for a tumbling
+    class :func:`draw_tumble`'s.
     """
     rng = curve_rng(config.seed, index)
     weights = np.array([c.weight for c in config.classes])
@@ -119,6 +125,7 @@ def draw_curve(config: DatasetConfig, index: int, pass_lengths: np.ndarray | Non
         p = int(rng.integers(len(pass_lengths)))
         spare = max(0, int(pass_lengths[p]) - config.samples)
         geometry = dict(pass_id=p, offset=int(rng.integers(spare + 1)))
+    tumble = None if cls.tumble is None else draw_tumble(cls.tumble, rng)
     return Curve(
         index=index,
         class_id=class_id,
@@ -129,7 +136,63 @@ def draw_curve(config: DatasetConfig, index: int, pass_lengths: np.ndarray | Non
         phase_deg=phase,
         materials=tuple(materials),
         geometry=geometry,
+        tumble=tumble,
     )
+
+
+def draw_tumble(prior, rng: np.random.Generator) -> dict:
+    """A tumbling curve's own draws, in this order: the moments along body x, y, z
+    (log-uniform), the mode (``"any"``: SAM or LAM, ½ each), the excitation
+    (uniform), the polhode phase and the sense (the arguments of
+    :func:`jaxlc.body.tumble.tumble_from_invariants` that the spin's draws do not give)."""
+    inertia = [_log_uniform(rng, r) for r in prior.inertia_kg_m2]
+    u = rng.random()
+    mode = prior.mode if prior.mode != "any" else ("SAM" if u < 0.5 else "LAM")
+    return {
+        "inertia_kg_m2": inertia,
+        "mode": mode,
+        "excitation": _uniform(rng, prior.excitation),
+        "polhode_phase": float(rng.random()),
+        "sense": 1 if rng.random() < 0.5 else -1,
+    }
+
+
+def curve_attitude(curve: Curve) -> dict:
+    """The scene ``[attitude]`` table of a drawn curve, at its first sample (no epoch)."""
+    if curve.tumble is None:
+        raise DatasetError("curve_attitude: a spinning curve's attitude needs its body axis")
+    from jaxlc.body.tumble import tumble_from_invariants
+
+    d = curve.tumble
+    tumble = tumble_from_invariants(
+        d["inertia_kg_m2"],
+        d["mode"],
+        d["excitation"],
+        curve.period_s,
+        curve.pole_ra_deg,
+        curve.pole_dec_deg,
+        curve.phase_deg,
+        d["polhode_phase"],
+        d["sense"],
+    )
+    return {
+        "model": "tumble",
+        "inertia_kg_m2": [float(x) for x in d["inertia_kg_m2"]],
+        "omega_body_rad_s": [float(x) for x in np.asarray(tumble.omega_body_rad_s)],
+        "quaternion": [float(x) for x in np.asarray(tumble.quaternion)],
+    }
+
+
+def spin_attitude(body_axis, pole_ra_deg, pole_dec_deg, period_s, phase_deg) -> dict:
+    """A spin's scene ``[attitude]`` table, its phase at the first sample (no epoch)."""
+    return {
+        "model": "spin",
+        "body_axis": [float(x) for x in body_axis],
+        "pole_ra_deg": float(pole_ra_deg),
+        "pole_dec_deg": float(pole_dec_deg),
+        "period_s": float(period_s),
+        "phase_deg": float(phase_deg),
+    }
 
 
 def _material(prior, pick) -> dict:
@@ -164,7 +227,18 @@ def check_extremes(config: DatasetConfig) -> None:
     g = config.geometry
     for class_id, cls in enumerate(config.classes):
         where = f"{config.source}: [[class]] {cls.name!r}"
-        for end, k in (("low", 0), ("high", 1)):
+        t = cls.tumble
+        modes = [None] if t is None else (["SAM", "LAM"] if t.mode == "any" else [t.mode])
+        for (end, k), mode in itertools.product((("low", 0), ("high", 1)), modes):
+            tumble = None
+            if t is not None:
+                tumble = {
+                    "inertia_kg_m2": [r[k] for r in t.inertia_kg_m2],
+                    "mode": mode,
+                    "excitation": t.excitation[k],
+                    "polhode_phase": 0.0,
+                    "sense": 1,
+                }
             curve = Curve(
                 index=-1,
                 class_id=class_id,
@@ -175,12 +249,12 @@ def check_extremes(config: DatasetConfig) -> None:
                 phase_deg=0.0,
                 materials=tuple(_material(m, lambda r, log, k=k: r[k]) for m in cls.materials),
                 geometry={},
+                tumble=tumble,
             )
+            source = f"{where} at the {end} ends of its ranges" + (f" ({mode})" if mode else "")
             try:
-                scene = scene_from_dict(
-                    curve_scene(config, curve), source=f"{where} at the {end} ends of its ranges"
-                )
-            except JaxlcError as exc:
+                scene = scene_from_dict(curve_scene(config, curve), source=source)
+            except (JaxlcError, ValueError) as exc:
                 raise DatasetError(str(exc)) from None
         if not isinstance(g, SyntheticSource):
             continue
@@ -196,31 +270,14 @@ def check_extremes(config: DatasetConfig) -> None:
             )
 
 
-def scene_dict(
-    mesh: str,
-    scale: float,
-    materials,
-    body_axis,
-    pole_ra_deg: float,
-    pole_dec_deg: float,
-    period_s: float,
-    phase_deg: float,
-    exposure_s: float,
-    render: dict,
-) -> dict:
-    """A curve's scene as a scene-file dict (:func:`jaxlc.scene_from_dict`); the spin
-    phase is at the curve's first sample (no epoch)."""
+def scene_dict(mesh: str, scale: float, materials, attitude: dict, exposure_s: float, render):
+    """A curve's scene as a scene-file dict (:func:`jaxlc.scene_from_dict`); its
+    ``attitude`` table (:func:`spin_attitude`, :func:`curve_attitude`) is at the
+    curve's first sample (no epoch)."""
     return {
         "object": {"mesh": str(mesh), "scale": float(scale)},
         "material": [dict(m) for m in materials],
-        "attitude": {
-            "model": "spin",
-            "body_axis": [float(x) for x in body_axis],
-            "pole_ra_deg": float(pole_ra_deg),
-            "pole_dec_deg": float(pole_dec_deg),
-            "period_s": float(period_s),
-            "phase_deg": float(phase_deg),
-        },
+        "attitude": dict(attitude),
         "sensor": {"exposure_s": float(exposure_s)},
         "render": dict(render),
     }
@@ -229,15 +286,17 @@ def scene_dict(
 def curve_scene(config: DatasetConfig, curve: Curve) -> dict:
     """The scene of a drawn curve (a scene-file dict)."""
     cls = config.classes[curve.class_id]
+    if curve.tumble is None:
+        attitude = spin_attitude(
+            cls.body_axis, curve.pole_ra_deg, curve.pole_dec_deg, curve.period_s, curve.phase_deg
+        )
+    else:
+        attitude = curve_attitude(curve)
     return scene_dict(
         cls.mesh_path,
         cls.mesh_scale * curve.scale,
         curve.materials,
-        cls.body_axis,
-        curve.pole_ra_deg,
-        curve.pole_dec_deg,
-        curve.period_s,
-        curve.phase_deg,
+        attitude,
         config.exposure_s,
         cls.render.as_table(),
     )

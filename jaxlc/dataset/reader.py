@@ -183,19 +183,25 @@ class Dataset:
 
     def scene(self, curve: int) -> dict:
         """The scene of curve ``curve`` as a dict for :func:`jaxlc.scene_from_dict`."""
-        from jaxlc.dataset.draw import scene_dict
+        from jaxlc.dataset.draw import scene_dict, spin_attitude
 
         row = self.labels.loc[curve]
         cls = self.attrs["classes"][int(row["class_id"])]
+        if row["attitude"]:
+            attitude = json.loads(row["attitude"])
+        else:  # format 2: every curve spins
+            attitude = spin_attitude(
+                [row[f"body_axis_{c}"] for c in "xyz"],
+                row["pole_ra_deg"],
+                row["pole_dec_deg"],
+                row["period_s"],
+                row["phase_deg"],
+            )
         return scene_dict(
             row["mesh"],
             row["scale"],
             json.loads(row["materials"]),
-            [row[f"body_axis_{c}"] for c in "xyz"],
-            row["pole_ra_deg"],
-            row["pole_dec_deg"],
-            row["period_s"],
-            row["phase_deg"],
+            attitude,
             self.attrs["exposure_s"],
             cls["render"],
         )
@@ -280,9 +286,11 @@ def open_dataset(path: str | Path, partial: bool = False) -> Dataset:
     )
     group = root["labels"]
     columns = {}
-    for name, (dtype, _, _) in LABELS.items():
-        arr = group[name]
-        values = np.asarray(arr[...])[rows] if len(rows) else np.empty(0)
+    for name, (dtype, fill, _) in LABELS.items():
+        if name not in group:  # a label that an older format lacks
+            columns[name] = np.full(len(rows), fill, dtype=object if dtype == "str" else dtype)
+            continue
+        values = np.asarray(group[name][...])[rows] if len(rows) else np.empty(0)
         columns[name] = values.astype(object) if dtype == "str" else values
     labels = pd.DataFrame(columns, index=pd.Index(rows, name="curve"))
     with contextlib.suppress(ValueError):

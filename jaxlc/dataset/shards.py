@@ -66,9 +66,10 @@ def render_shard(config: DatasetConfig, shard: int, pool=None) -> Shard:
     lengths = pool.length if pool is not None else None
     curves = [draw_curve(config, i, lengths) for i in rows]
     geos = [curve_geometry(config, c, pool) for c in curves]
+    scenes = [curve_scene(config, c) for c in curves]
     prepared = [
-        prepare(scene_from_dict(curve_scene(config, c), source=f"curve {c.index}"), g.arrays)
-        for c, g in zip(curves, geos, strict=True)
+        prepare(scene_from_dict(d, source=f"curve {c.index}"), g.arrays)
+        for c, d, g in zip(curves, scenes, geos, strict=True)
     ]
     n, t_len = len(curves), config.samples
     intensity = np.full((n, t_len), np.nan)
@@ -126,7 +127,24 @@ def render_shard(config: DatasetConfig, shard: int, pool=None) -> Shard:
         arrays["mag_noisy"] = magnitude_of(noisy).astype(np.float32)
         arrays["flux_noisy_w_m2"] = noisy.astype(np.float32)
         arrays["mag_err"] = err.astype(np.float32)
-    return Shard(shard, rows.start, arrays, _labels(config, curves, geos, prepared, vis, pool))
+    labels = _labels(config, curves, scenes, geos, prepared, vis, pool)
+    return Shard(shard, rows.start, arrays, labels)
+
+
+def tumble_labels(spec) -> dict:
+    """A tumble's labels (mode, excitation, both periods, moments; empty for a spin)
+    from its scene ``[attitude]`` (:class:`jaxlc.scene_attitude.AttitudeSpec`)."""
+    if spec.model != "tumble":
+        return {}
+    tumble = spec.tumble()
+    body, precession = tumble.periods_s()
+    return {
+        "tumble_mode": tumble.mode(),
+        "excitation": tumble.excitation(),
+        "body_period_s": body,
+        "precession_period_s": precession,
+        **{f"inertia_{a}_kg_m2": float(x) for a, x in zip("xyz", spec.inertia_kg_m2, strict=True)},
+    }
 
 
 def lit(flux_w_m2: np.ndarray) -> np.ndarray:
@@ -147,21 +165,24 @@ def lit(flux_w_m2: np.ndarray) -> np.ndarray:
     return np.isfinite(f) & (f > 0)
 
 
-def _labels(config, curves, geos, prepared, visible, pool) -> pd.DataFrame:
+def _labels(config, curves, scenes, geos, prepared, visible, pool) -> pd.DataFrame:
     out = []
-    for c, g, p, v in zip(curves, geos, prepared, visible, strict=True):
+    for c, d, g, p, v in zip(curves, scenes, geos, prepared, visible, strict=True):
         cls = config.classes[c.class_id]
         a = g.arrays
         any_v = bool(v.any())
+        axis = cls.body_axis if cls.body_axis is not None else (np.nan,) * 3
         row = {
             "class": cls.name,
             "class_id": c.class_id,
             "mesh": str(cls.mesh_path),
             "scale": cls.mesh_scale * c.scale,
             "materials": json.dumps(list(c.materials)),
-            "body_axis_x": cls.body_axis[0],
-            "body_axis_y": cls.body_axis[1],
-            "body_axis_z": cls.body_axis[2],
+            "attitude": json.dumps(d["attitude"]),
+            "body_axis_x": axis[0],
+            "body_axis_y": axis[1],
+            "body_axis_z": axis[2],
+            **tumble_labels(p.scene.attitude),
             "pole_ra_deg": c.pole_ra_deg,
             "pole_dec_deg": c.pole_dec_deg,
             "period_s": c.period_s,
@@ -195,6 +216,7 @@ def _labels(config, curves, geos, prepared, visible, pool) -> pd.DataFrame:
     for name, (dtype, fill, _) in LABELS.items():
         if name not in df:
             df[name] = fill
+        df[name] = df[name].where(df[name].notna(), fill)  # a spin's tumble labels
         if dtype != "str":
             df[name] = df[name].astype(dtype)
     return df[list(LABELS)]

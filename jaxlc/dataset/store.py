@@ -48,12 +48,16 @@ from jaxlc.dataset.config import DatasetError
 from jaxlc.io.provenance import git_commit, jaxlc_version
 
 #: Format tag written into every store's attributes.
-FORMAT = "jaxlc-dataset/2"
+FORMAT = "jaxlc-dataset/3"
 #: Earlier formats, readable with a warning (never resumed): format → what differs.
 OLD_FORMATS = {
     "jaxlc-dataset/1": (
         "its `visible` includes samples with zero flux (mag = +inf, mag_err = +inf); "
         "use visible & np.isfinite(mag) as the mask, or generate it again"
+    ),
+    "jaxlc-dataset/2": (
+        "it has no attitude or tumble labels (every curve of it spins; its scenes are "
+        "rebuilt from the spin labels)"
     ),
 }
 
@@ -89,13 +93,21 @@ LABELS = {
     "mesh": ("str", "", "mesh file"),
     "scale": ("float64", np.nan, "[object] scale of the curve's scene (class scale × size factor)"),
     "materials": ("str", "", "JSON list of the scene [[material]] tables drawn for the curve"),
-    "body_axis_x": ("float64", np.nan, "spin axis in the body frame"),
+    "attitude": ("str", "", "JSON of the scene [attitude] table at t_s = 0 (spin or tumble)"),
+    "body_axis_x": ("float64", np.nan, "spin axis in the body frame; NaN for a tumble"),
     "body_axis_y": ("float64", np.nan, ""),
     "body_axis_z": ("float64", np.nan, ""),
-    "pole_ra_deg": ("float64", np.nan, "spin pole right ascension (deg)"),
-    "pole_dec_deg": ("float64", np.nan, "spin pole declination (deg)"),
-    "period_s": ("float64", np.nan, "spin period (s)"),
-    "phase_deg": ("float64", np.nan, "spin phase at t_s = 0 (deg)"),
+    "pole_ra_deg": ("float64", np.nan, "spin pole right ascension (deg); a tumble: L's"),
+    "pole_dec_deg": ("float64", np.nan, "spin pole declination (deg); a tumble: L's"),
+    "period_s": ("float64", np.nan, "spin period (s); a tumble: its precession period"),
+    "phase_deg": ("float64", np.nan, "spin phase at t_s = 0 (deg); a tumble: about L"),
+    "tumble_mode": ("str", "", "tumble: 'SAM' (short-axis) or 'LAM' (long-axis); '' spin"),
+    "excitation": ("float64", np.nan, "tumble: 0 principal-axis spin … 1 separatrix (energy)"),
+    "body_period_s": ("float64", np.nan, "tumble: period T_ω of ω in the body frame (s)"),
+    "precession_period_s": ("float64", np.nan, "tumble: mean period of the rotation about L"),
+    "inertia_x_kg_m2": ("float64", np.nan, "tumble: principal moment along body x (any scale)"),
+    "inertia_y_kg_m2": ("float64", np.nan, "tumble: principal moment along body y"),
+    "inertia_z_kg_m2": ("float64", np.nan, "tumble: principal moment along body z"),
     "subsamples": (
         "int32",
         0,
@@ -148,7 +160,8 @@ def _classes_attr(config) -> list[dict]:
                 "weight": c.weight,
                 "scale": list(c.scale),
                 "period_s": list(c.period_s),
-                "body_axis": list(c.body_axis),
+                "body_axis": None if c.body_axis is None else list(c.body_axis),
+                "tumble": None if c.tumble is None else dataclasses.asdict(c.tumble),
                 "render": r.as_table(),
             }
         )

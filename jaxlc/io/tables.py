@@ -255,12 +255,16 @@ def validate_geometry(df: pd.DataFrame) -> pd.DataFrame:
     for name in POSITION_COLUMNS:
         _check(df, vis & ~np.isfinite(out[name].to_numpy()), name, "must be finite on visible rows")
     pos = {b: out[[f"{b}_{c}_m" for c in "xyz"]].to_numpy() for b in ("rso", "sun", "obs")}
-    for other in ("sun", "obs"):
-        dist = np.linalg.norm(pos[other] - pos["rso"], axis=1)
-        _check(
-            df, vis & ~(dist > 0), f"{other}_x_m", f"puts the {other} at the object (zero distance)"
-        )
-    _check_plausible(df, pos, vis)
+    with np.errstate(over="ignore"):  # absurd positions overflow: refused as implausible
+        for other in ("sun", "obs"):
+            dist = np.linalg.norm(pos[other] - pos["rso"], axis=1)
+            _check(
+                df,
+                vis & ~(dist > 0),
+                f"{other}_x_m",
+                f"puts the {other} at the object (zero distance)",
+            )
+        _check_plausible(df, pos, vis)
     nu = out["shadow_nu"].to_numpy()
     _check(df, vis & ~((nu >= 0) & (nu <= 1)), "shadow_nu", "must be in [0, 1]")
     exp = out["exposure_s"].to_numpy()
