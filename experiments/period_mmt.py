@@ -27,7 +27,8 @@ import numpy as np
 import pandas as pd
 
 from jaxlc.inference.harmonics import median_step_s
-from jaxlc.inference.period import analyse_period, period_agrees
+from jaxlc.inference.period import analyse_period
+from jaxlc.inference.period_result import period_agrees
 from jaxlc.io.observations import observed_samples, read_observations
 from jaxlc.io.tables import write_table
 
@@ -60,14 +61,18 @@ def plain_lomb_scargle(t, y) -> tuple[float, float]:
     return float(1.0 / f[k]), fap
 
 
+#: Verdicts that claim a period ("two periods": a tumbler's, its first period scored).
+CLAIMS = ("periodic", "two periods")
+
+
 def score(verdict: str, period_s: float, mmt: str, mmt_period: float, span: float):
     """True/False for a scored row, None for an unscored one."""
     if mmt == "periodic":
         if mmt_period > span / 2:  # fewer than two of MMT's cycles in this piece
             return None
-        return bool(verdict == "periodic" and period_agrees(period_s, mmt_period, span))
+        return bool(verdict in CLAIMS and period_agrees(period_s, mmt_period, span))
     if mmt == "not variable":
-        return verdict != "periodic"
+        return verdict not in CLAIMS
     return None
 
 
@@ -99,6 +104,7 @@ def rows_for(path: Path) -> list[dict]:
                 "mmt_period_s": mmt_p if mmt_p > 0 else np.nan,
                 "jaxlc_verdict": r.verdict,
                 "jaxlc_period_s": r.period_s,
+                "jaxlc_second_period_s": r.second_period_s,
                 "jaxlc_multiple": r.harmonic_factor,
                 "jaxlc_fap": r.false_alarm_probability,
                 "jaxlc_delta_bic": r.delta_bic,

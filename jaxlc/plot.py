@@ -85,7 +85,7 @@ def plot_period(
     import matplotlib.pyplot as plt
 
     from jaxlc.inference.harmonics import fourier_design
-    from jaxlc.inference.period import fold_phase, format_p
+    from jaxlc.inference.period_result import fold_phase, format_p
 
     fig, (ax, ax2) = plt.subplots(2, 1, figsize=(8, 7.5))
     if len(result.power):
@@ -100,6 +100,10 @@ def plot_period(
             else "best candidate (not significant)"
         )
         ax.axvline(p_fold, color="tab:green", lw=2.5, alpha=0.7, label=label, zorder=2)
+    if result.two_periods:
+        ax.axvline(
+            result.second_period_s, color="tab:orange", lw=2.5, alpha=0.7, label="second period"
+        )
     if np.isfinite(result.catalogue_period_s) and result.catalogue_period_s > 0:
         ax.axvline(
             result.catalogue_period_s,
@@ -118,6 +122,8 @@ def plot_period(
         if result.periodic
         else f"no period ({result.verdict})"
     )
+    if result.two_periods:
+        head = f"two periods: {result.period_s:.5g} s and {result.second_period_s:.5g} s"
     ax.set_title(title or f"{head}; FAP {fap}, ΔBIC {result.delta_bic:.1f}", fontsize=10)
     t = np.asarray(result.sample_t_s if result.sample_t_s is not None else [])
     y = np.asarray(result.sample_mag if result.sample_mag is not None else [])

@@ -19,7 +19,8 @@ from helpers import REPO
 import jaxlc
 from jaxlc.errors import JaxlcError
 from jaxlc.inference import periodogram
-from jaxlc.inference.period import analyse_period, format_p, period_agrees
+from jaxlc.inference.period import analyse_period
+from jaxlc.inference.period_result import format_p, period_agrees
 from jaxlc.io.observations import observed_samples, read_observations
 
 MMT_DIR = REPO / "tests" / "data" / "mmt"

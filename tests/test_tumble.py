@@ -502,7 +502,7 @@ def test_shipped_tumble_scene_explains_its_periods():
     plan = make_plan(scene, geometry_arrays(geo, scene.exposure_s), scene.render)
     text = plan.explain()
     body, precession = scene.attitude.tumble().periods_s()
-    assert "attitude   tumble (LAM)" in text
+    assert "attitude   tumble (SAM)" in text
     assert f"every {body:.6g} s" in text and f"every {precession:.6g} s" in text
 
 

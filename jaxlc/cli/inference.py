@@ -42,12 +42,16 @@ def period(
     A period is reported only when a trend + Fourier-series model at it beats
     the trend alone (ΔBIC > 10, effective samples) and block-shuffled data
     rarely reach its periodogram peak (FAP < 0.01). Candidates are 1–4 × the
-    strongest periodogram peaks. JSON: "period_s" is null and "variable"
-    says whether the curve varies at all when no period is found.
+    strongest periodogram peaks. A tumbling body's second period is reported
+    too ("second_period_s", verdict "two periods") when a series in both
+    frequencies beats every one-period model by the same evidence. JSON:
+    "period_s" is null and "variable" says whether the curve varies at all
+    when no period is found.
     """
     import json as _json
 
-    from jaxlc.inference.period import analyse_period, format_p
+    from jaxlc.inference.period import analyse_period
+    from jaxlc.inference.period_result import format_p
     from jaxlc.io.files import check_output
     from jaxlc.io.observations import observed_samples, read_observations
 
@@ -82,6 +86,7 @@ def period(
         "verdict",
         "period_s",
         "period_err_s",
+        "second_period_s",
         "best_period_s",
         "harmonic_factor",
         "alternative_period_s",

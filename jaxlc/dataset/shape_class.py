@@ -10,7 +10,7 @@ a ``[class.tumble]`` table, tumbles torque-free::
     scene = "s4_falcon9"
     period_s = [20.0, 200.0]      # a tumble's precession period (mean rotation about L)
     [class.tumble]
-    inertia_kg_m2 = [[7e3, 9e3], [9e4, 1e5], 1e5]   # body x, y, z: a number or [low, high]
+    inertia_kg_m2 = [[9e4, 1e5], 1e5, [1.5e4, 2.5e4]]   # body x, y, z: number or [low, high]
     mode = "any"                  # "SAM", "LAM" or "any"
     excitation = [0.05, 0.9]      # 0: principal-axis spin … 1: the separatrix
 

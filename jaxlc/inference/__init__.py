@@ -11,6 +11,7 @@
 """
 
 from jaxlc.inference.fit import FitSettings, fit_spin
-from jaxlc.inference.period import PeriodResult, analyse_period
+from jaxlc.inference.period import analyse_period
+from jaxlc.inference.period_result import PeriodResult
 
 __all__ = ["FitSettings", "PeriodResult", "analyse_period", "fit_spin"]

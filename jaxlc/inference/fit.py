@@ -31,7 +31,8 @@ from jaxlc.inference.data import fit_data, soft_clip
 from jaxlc.inference.harmonics import median_step_s
 from jaxlc.inference.mcmc import FitSettings
 from jaxlc.inference.model import MC_NAMES, N_LM, spin_model, to_device
-from jaxlc.inference.period import analyse_period, distinct_periods
+from jaxlc.inference.period import analyse_period
+from jaxlc.inference.period_result import distinct_periods
 from jaxlc.inference.search import multistart
 from jaxlc.io.files import atomic_output
 from jaxlc.scene import Scene
@@ -93,7 +94,13 @@ def fit_spin(
         lo = settings.min_period_s
         if lo is not None:
             lo = max(lo / 4, 2.5 * median_step_s(np.sort(data.t_s)))
-        pr = analyse_period(data.t_s, data.mag, min_period_s=lo, max_period_s=settings.max_period_s)
+        pr = analyse_period(
+            data.t_s,
+            data.mag,
+            min_period_s=lo,
+            max_period_s=settings.max_period_s,
+            two_periods=False,  # the spin fit seeds from one period's candidates
+        )
         if not pr.variable:
             raise JaxlcError(
                 f"spin fit: the light curve does not vary beyond its noise and trend "

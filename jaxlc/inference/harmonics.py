@@ -99,6 +99,26 @@ class HarmonicModel:
             coef, *_ = np.linalg.lstsq(f, y, rcond=None)
         return y - f @ coef
 
+    def residuals_at(self, frequencies_hz, modulated: bool = False) -> np.ndarray:
+        """(N,) weighted residuals of the trend + a cos and sin at each of the (K,)
+        frequencies (Hz), fitted per group: the series of any set of frequencies
+        (two periods' combinations), as :meth:`residuals` for harmonics.
+        ``modulated``: each coefficient also changes linearly in time (a light curve
+        whose shape drifts over the span; 4 K columns instead of 2 K)."""
+        freqs = np.asarray(frequencies_hz, np.float64)
+        out = []
+        for t, sw, q, y in zip(self._t, self._sw, self._q, self._y, strict=True):
+            w = 2 * np.pi * t[:, None] * freqs[None, :]
+            f = np.concatenate([np.cos(w), np.sin(w)], axis=1)
+            if modulated:
+                x = (t - t.mean()) / max(float(np.ptp(t)), 1e-9)
+                f = np.concatenate([f, f * x[:, None]], axis=1)
+            f = f * sw[:, None]
+            f -= q @ (q.T @ f)
+            coef, *_ = np.linalg.lstsq(f, y, rcond=None)
+            out.append(y - f @ coef)
+        return np.concatenate(out)
+
     def residuals(self, frequency_hz: float, n_harmonics: int) -> np.ndarray:
         """(N,) weighted residuals, group after group (0 harmonics: the trend's)."""
         if n_harmonics == 0:

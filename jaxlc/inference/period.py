@@ -23,6 +23,10 @@ Steps (:func:`analyse_period`):
    :data:`FAP_THRESHOLD`). Otherwise ``period_s`` is NaN (``null`` in
    JSON) and ``verdict`` says whether the curve varies at all (von Neumann
    test of the residuals against white noise).
+5. **A second period.** With a period found, its residuals are searched for a
+   second fundamental frequency by the same evidence
+   (:mod:`jaxlc.inference.two_periods`): a tumbling body's light curve has
+   two; ``second_period_s`` is NaN when it shows one.
 
 Example:
     >>> result = analyse_period(t_s, mag)
@@ -47,6 +51,8 @@ from jaxlc.inference.harmonics import (
     spin_candidates,
     von_neumann_p,
 )
+from jaxlc.inference.period_result import NAN, PeriodResult, format_p
+from jaxlc.inference.two_periods import second_period
 
 #: ΔBIC (effective samples) a period must gain over the trend, and a multiple over the peak.
 BIC_THRESHOLD = 10.0
@@ -59,73 +65,8 @@ CONSTANT_MAG = 1e-6
 #: Most samples analysed: longer curves are analysed on a random subset this large
 #: (sorted in time), which keeps time and memory bounded whatever the input.
 MAX_SAMPLES = 20_000
-NAN = float("nan")
 #: Periodogram peaks whose multiples are candidates.
 N_PEAKS = 5
-
-
-@dataclasses.dataclass(frozen=True)
-class PeriodResult:
-    """The outcome of :func:`analyse_period` (seconds, magnitudes).
-
-    ``period_s`` is NaN unless ``verdict == "periodic"``; ``best_period_s``
-    is the best candidate either way (for plots and fit seeds).
-    """
-
-    verdict: str  # "periodic", "aperiodic" (varies, no period) or "not variable"
-    variable: bool
-    decision: str
-    n_samples: int
-    subsampled_from: int  # 0, or the number of usable samples when more than MAX_SAMPLES
-    span_s: float
-    min_period_s: float
-    max_period_s: float
-    n_groups: int
-    period_s: float = NAN
-    period_err_s: float = NAN
-    best_period_s: float = NAN
-    harmonic_factor: int = 1
-    n_harmonics: int = 0
-    alternative_period_s: float = NAN
-    ls_period_s: float = NAN
-    ls_power: float = NAN
-    false_alarm_probability: float = 1.0
-    false_alarm_probability_empirical: float = 1.0
-    false_alarm_probability_white: float = NAN
-    shuffles: int = 0
-    delta_bic: float = 0.0
-    variability_p: float = 1.0
-    effective_samples: float = NAN
-    red_noise_rho: float = NAN
-    cycles: float = NAN
-    amplitude_mag: float = 0.0
-    candidates: tuple = ()
-    frequency_hz: np.ndarray = dataclasses.field(repr=False, default=None)
-    power: np.ndarray = dataclasses.field(repr=False, default=None)
-    sample_t_s: np.ndarray = dataclasses.field(repr=False, default=None)
-    sample_mag: np.ndarray = dataclasses.field(repr=False, default=None)
-    model_mag: np.ndarray = dataclasses.field(repr=False, default=None)
-    trend_mag: np.ndarray = dataclasses.field(repr=False, default=None)
-    catalogue_period_s: float = NAN
-
-    @property
-    def periodic(self) -> bool:
-        """True when a period is reported."""
-        return self.verdict == "periodic"
-
-    def summary(self) -> dict:
-        """JSON-ready dict (arrays left out, NaN as None)."""
-        d = {
-            k: v
-            for k, v in dataclasses.asdict(self).items()
-            if k
-            not in ("frequency_hz", "power", "sample_t_s", "sample_mag", "model_mag", "trend_mag")
-        }
-        d["candidates"] = [dict(c) for c in self.candidates]
-        for k, v in d.items():
-            if isinstance(v, float) and not math.isfinite(v):
-                d[k] = None
-        return d
 
 
 def _clean(t_s, mag, mag_err):
@@ -171,6 +112,7 @@ def analyse_period(
     n_permutations: int = 300,
     seed: int = 0,
     catalogue_period_s: float = NAN,
+    two_periods: bool = True,
 ) -> PeriodResult:
     """Spin period with its evidence, or "no period" when the data do not support one.
 
@@ -190,6 +132,8 @@ def analyse_period(
         seed: random seed of the shuffles.
         catalogue_period_s: a period from elsewhere (e.g. the MMT header),
             only carried into the result for comparison.
+        two_periods: when a period is found, look for a second one in its
+            residuals (a tumbling body's; :mod:`jaxlc.inference.two_periods`).
 
     Returns:
         A :class:`PeriodResult`.
@@ -281,11 +225,28 @@ def analyse_period(
     fitted = model.fitted(best.frequency_hz, best.n_harmonics)
     trend = model.fitted(0.0, 0)
     decision = _decision(best, periodic, variable, delta_bic, fap, var_p, alternative)
+    second, verdict = {}, "periodic" if periodic else ("aperiodic" if variable else "not variable")
+    if variable and two_periods:
+        found = second_period(
+            model, grid, t, dy, w, best.frequency_hz, periodic, p_min, p_max,
+            BIC_THRESHOLD, FAP_THRESHOLD, n_permutations, np.random.default_rng(seed + 1),
+        )  # fmt: skip
+        if math.isfinite(found.period_s):
+            verdict, decision = "two periods", found.decision
+            second["period_s"] = found.first_period_s
+        elif periodic:
+            decision += f"; {found.decision}"
+        second |= dict(
+            second_period_s=found.period_s,
+            second_best_period_s=found.best_period_s,
+            second_delta_bic=found.delta_bic,
+            second_false_alarm_probability=found.false_alarm_probability,
+        )
     s_best = _score(best, model.n, n_eff)
     return PeriodResult(
-        verdict="periodic" if periodic else ("aperiodic" if variable else "not variable"),
+        verdict=verdict,
         variable=bool(variable),
-        period_s=best.period_s if periodic else float("nan"),
+        period_s=second.pop("period_s", best.period_s if periodic else float("nan")),
         period_err_s=f_err / best.frequency_hz**2 if periodic else float("nan"),
         best_period_s=best.period_s,
         harmonic_factor=best.multiple,
@@ -320,6 +281,7 @@ def analyse_period(
         sample_mag=y,
         model_mag=fitted,
         trend_mag=trend,
+        **second,
         **common,
     )
 
@@ -374,37 +336,3 @@ def _decision(best, periodic, variable, delta_bic, fap, var_p, alternative) -> s
         f"no period: not variable beyond noise and trend (von Neumann p = {format_p(var_p)}; "
         f"best {best.period_s:.5g} s: {evidence})"
     )
-
-
-def period_agrees(found_s: float, true_s: float, span_s: float) -> bool:
-    """Whether a period matches a reference spin period: it, or exactly half or double
-    it, within max(1 %, ¼ of the periodogram resolution P²/T) of the reference P (T:
-    the span, s). NaN never agrees."""
-    tol = max(0.01 * true_s, 0.25 * true_s**2 / span_s)
-    return any(abs(k * found_s - true_s) <= tol for k in (0.5, 1.0, 2.0))
-
-
-def format_p(p: float) -> str:
-    """A probability for people: '< 1e-300' instead of 0, two significant digits."""
-    if not math.isfinite(p):
-        return "—"
-    if p < 1e-300:
-        return "< 1e-300"
-    return f"{p:.2g}"
-
-
-def fold_phase(t_s, period_s: float) -> np.ndarray:
-    """Rotational phase in [0, 1) of each sample for a period (s)."""
-    return np.mod(np.asarray(t_s, dtype=np.float64) / period_s, 1.0)
-
-
-def distinct_periods(periods, tol: float = 0.01, limit: int | None = None) -> list[float]:
-    """The periods, in order, each more than a fraction ``tol`` from those before it
-    (the first ``limit`` of them)."""
-    out: list[float] = []
-    for p in periods:
-        if len(out) == limit:
-            break
-        if all(abs(p / q - 1) > tol for q in out):
-            out.append(float(p))
-    return out
