@@ -35,6 +35,7 @@ from jaxlc.geometry.tle import read_tles  # noqa: E402
 from jaxlc.inference import periodogram  # noqa: E402
 from jaxlc.inference.period import analyse_period  # noqa: E402
 from jaxlc.inference.period_result import fold_phase  # noqa: E402
+from jaxlc.inference.two_periods import lattice_combination  # noqa: E402
 
 OUT = HERE / "results" / "tumble_demo.png"
 TLE = HERE.parent / "data" / "tle" / "falcon9_rb.tle"
@@ -45,19 +46,6 @@ def demo_pass() -> pd.DataFrame:
     tle = next(t for t in read_tles(TLE) if t.norad_id == 45921)
     start = pd.Timestamp("2020-08-10T18:00:00Z")
     return geometry_table(tle, get_site("mt-stromlo"), start, 1200.0, 1.0, 1.0)
-
-
-def combination(f_hz: float, f_psi: float, f_omega: float, tol_hz: float, order: int = 6):
-    """The smallest (j, k) with |j f_ψ + k f_ω − f| ≤ tol_hz (|j|, |k| ≤ order), or None."""
-    pairs = sorted(
-        (abs(j) + abs(k), j, k)
-        for j in range(-order, order + 1)
-        for k in range(-order, order + 1)
-        if j or k
-    )
-    return next(
-        ((j, k) for _, j, k in pairs if abs(j * f_psi + k * f_omega - f_hz) <= tol_hz), None
-    )
 
 
 def main(argv=None) -> pd.DataFrame:
@@ -94,14 +82,14 @@ def main(argv=None) -> pd.DataFrame:
             {
                 "what": "periodogram peak",
                 "period_s": 1.0 / f,
-                "j_k": str(combination(f, f_psi, f_omega, tol)),
+                "j_k": str(lattice_combination(f, f_psi, f_omega, tol)),
             }
         )
     for name, p in (
         ("jaxlc period: first", r.period_s),
         ("jaxlc period: second", r.second_period_s),
     ):
-        jk = combination(1.0 / p, f_psi, f_omega, tol) if np.isfinite(p) else None
+        jk = lattice_combination(1.0 / p, f_psi, f_omega, tol) if np.isfinite(p) else None
         rows.append({"what": name, "period_s": p, "j_k": str(jk)})
     table = pd.DataFrame(rows)
     table["verdict"] = r.verdict

@@ -21,6 +21,12 @@ SCENES = REPO / "jaxlc" / "data" / "scenes"
 DATA = Path(__file__).resolve().parent / "data"
 
 
+def radec_unit(ra_deg: float, dec_deg: float) -> np.ndarray:
+    """The unit vector (3,) of a right ascension and declination (deg)."""
+    ra, dec = math.radians(ra_deg), math.radians(dec_deg)
+    return np.array([math.cos(dec) * math.cos(ra), math.cos(dec) * math.sin(ra), math.sin(dec)])
+
+
 def unit(x):
     x = np.asarray(x, dtype=np.float64)
     return x / np.linalg.norm(x, axis=-1, keepdims=True)

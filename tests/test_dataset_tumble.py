@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 import pytest
-from helpers import rotation_matrix_from_quaternion
+from helpers import radec_unit, rotation_matrix_from_quaternion
 
 import jaxlc
 import jaxlc.dataset as dataset
@@ -59,11 +59,6 @@ def store(tmp_path_factory):
     return dataset.generate(path, path.with_suffix(".zarr"), workers=0, progress=False)
 
 
-def _unit(ra_deg, dec_deg):
-    ra, dec = math.radians(ra_deg), math.radians(dec_deg)
-    return np.array([math.cos(dec) * math.cos(ra), math.cos(dec) * math.sin(ra), math.sin(dec)])
-
-
 def test_tumbling_labels_describe_the_stored_state(store):
     labels = store.labels
     tumbling = labels[labels["class"] == "tumbling"]
@@ -82,7 +77,9 @@ def test_tumbling_labels_describe_the_stored_state(store):
         assert row["excitation"] == pytest.approx(x, abs=1e-9) and 0.1 <= x <= 0.8
         ell = rotation_matrix_from_quaternion(q) @ (inertia * w)
         np.testing.assert_allclose(
-            ell / np.linalg.norm(ell), _unit(row["pole_ra_deg"], row["pole_dec_deg"]), atol=1e-9
+            ell / np.linalg.norm(ell),
+            radec_unit(row["pole_ra_deg"], row["pole_dec_deg"]),
+            atol=1e-9,
         )
         assert row["period_s"] == pytest.approx(row["precession_period_s"], rel=1e-9)
         assert 40.0 <= row["period_s"] <= 200.0 and row["body_period_s"] > 0

@@ -17,7 +17,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import scipy.special as sp
-from helpers import MESHES, SCENES, rotation_matrix_from_quaternion
+from helpers import MESHES, SCENES, radec_unit, rotation_matrix_from_quaternion
 from scipy.integrate import solve_ivp
 
 import jaxlc
@@ -213,15 +213,7 @@ def test_periods_are_those_of_the_motion(name):
     rate = np.linalg.norm(w_model, axis=1).max()
     assert tumble.max_rate_rad_s() * (1 - 1e-2) < rate <= tumble.max_rate_rad_s() * (1 + 1e-12)
     ra, dec = tumble.angular_momentum_radec_deg()
-    np.testing.assert_allclose(
-        ell,
-        [
-            math.cos(math.radians(dec)) * math.cos(math.radians(ra)),
-            math.cos(math.radians(dec)) * math.sin(math.radians(ra)),
-            math.sin(math.radians(dec)),
-        ],
-        atol=1e-12,
-    )
+    np.testing.assert_allclose(ell, radec_unit(ra, dec), atol=1e-12)
 
 
 def test_axisymmetric_periods_are_the_textbook_ones():
@@ -374,12 +366,7 @@ def test_tumble_from_invariants_has_them(mode):
         assert t.excitation() == pytest.approx(x, abs=1e-12)
         assert t.periods_s()[1] == pytest.approx(period, rel=1e-12)
         ell = rotation_matrix_from_quaternion(q) @ (inertia * w)
-        want = [
-            math.cos(math.radians(dec)) * math.cos(math.radians(ra)),
-            math.cos(math.radians(dec)) * math.sin(math.radians(ra)),
-            math.sin(math.radians(dec)),
-        ]
-        np.testing.assert_allclose(ell / np.linalg.norm(ell), want, atol=1e-12)
+        np.testing.assert_allclose(ell / np.linalg.norm(ell), radec_unit(ra, dec), atol=1e-12)
         start = tumble_from_invariants(inertia, mode, x, period, ra, dec, 0.0, 0.0, sense)
         body = start.periods_s()[0]
         _, w_later = integrate(inertia, start.omega_body_rad_s, [1, 0, 0, 0], [0, phase * body])

@@ -19,6 +19,7 @@ from helpers import REPO
 
 import jaxlc
 from jaxlc.inference.period import analyse_period
+from jaxlc.inference.two_periods import lattice_combination
 
 
 @pytest.fixture(scope="module")
@@ -40,16 +41,6 @@ def _observed(scene, geo, seed: int, noise_mag: float = 0.05):
     return v["t_s"].to_numpy(), y
 
 
-def _combination(f_hz: float, f_psi: float, f_omega: float, tol_hz: float):
-    """(j, k) with |j f_ψ + k f_ω − f| ≤ tol (|j|, |k| ≤ 6, smallest first), or None."""
-    pairs = sorted(
-        ((abs(j) + abs(k), j, k) for j in range(-6, 7) for k in range(-6, 7) if j or k),
-    )
-    return next(
-        ((j, k) for _, j, k in pairs if abs(j * f_psi + k * f_omega - f_hz) <= tol_hz), None
-    )
-
-
 def test_the_tumbling_stage_shows_its_two_periods(demo_pass):
     """The shipped tumbling Falcon 9 stage (SAM, P_ψ 48.0 s, T_ω 166 s) over the demo
     pass, 0.05 mag noise, three noise draws (measured: 67.5 s = 1/(1/P_ψ − 1/T_ω)
@@ -63,8 +54,8 @@ def test_the_tumbling_stage_shows_its_two_periods(demo_pass):
         r = analyse_period(v["t_s"].to_numpy(), y)
         assert r.verdict == "two periods" and r.two_periods and r.periodic, r.decision
         tol = 1.0 / r.span_s
-        first = _combination(1 / r.period_s, 1 / precession, 1 / body, tol)
-        second = _combination(1 / r.second_period_s, 1 / precession, 1 / body, tol)
+        first = lattice_combination(1 / r.period_s, 1 / precession, 1 / body, tol)
+        second = lattice_combination(1 / r.second_period_s, 1 / precession, 1 / body, tol)
         assert first is not None and second is not None, (r.period_s, r.second_period_s)
         assert first[0] * second[1] - first[1] * second[0] != 0  # two directions, not one
         assert r.second_delta_bic > 10 and r.second_false_alarm_probability < 0.01

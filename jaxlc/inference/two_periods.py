@@ -97,6 +97,26 @@ def combination_frequencies(f1_hz: float, h1: int, f2_hz: float, k: int, j: int)
     return out[keep]
 
 
+def lattice_combination(
+    f_hz: float, f1_hz: float, f2_hz: float, tol_hz: float, order: int = 6
+) -> tuple[int, int] | None:
+    """Which combination j f₁ + k f₂ a frequency is: the (j, k) of smallest |j| + |k|
+    (≤ ``order`` each, not both 0) within ``tol_hz`` (e.g. the resolution 1/T), or None.
+
+    Example:
+        >>> lattice_combination(1 / 67.48, 1 / 47.98, 1 / 166.06, 1 / 1200)  # (1, -1)
+    """
+    pairs = sorted(
+        (abs(j) + abs(k), j, k)
+        for j in range(-order, order + 1)
+        for k in range(-order, order + 1)
+        if j or k
+    )
+    near = (jk for _, *jk in pairs if abs(jk[0] * f1_hz + jk[1] * f2_hz - f_hz) <= tol_hz)
+    found = next(near, None)
+    return None if found is None else (int(found[0]), int(found[1]))
+
+
 def _degenerate(f1: float, f2: float, resolution_hz: float) -> bool:
     """Whether q f₂ ≈ p f₁ (p, q ≤ :data:`MAX_RATIO`) within the resolution 1/T: then
     the pair is one period (or two the span cannot tell apart)."""
