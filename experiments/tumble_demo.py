@@ -150,7 +150,7 @@ def plot(t, y, r, f_psi, f_omega, mode, path: Path) -> None:
         ax.set_xlabel(f"phase at {p:.4g} s")
         ax.set_ylabel("mag")
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    fig.savefig(path, dpi=80)
     plt.close(fig)
 
 
