@@ -122,6 +122,18 @@ def test_shadowed_box_wing_against_jax_model():
     assert np.abs(unshadowed["mag"] - cyc["mag"])[ok].max() > 0.05  # Cycles does see the shadows
 
 
+def _sharp_and_blurred_match_jax(scene, geo) -> None:
+    """Cycles against the JAX model, sharp (≤ 0.01 mag) and motion-blurred (≤ 0.02 mag),
+    where the blur itself matters (> 0.02 mag)."""
+    sharp_jax = jaxlc.render(scene, geo, precision="float64", options=RenderOptions(blur="off"))
+    sharp = blender_render(scene, geo, BlenderOptions(**SMALL))
+    assert np.abs(sharp["mag"] - sharp_jax["mag"]).max() <= 0.01
+    blur_jax = jaxlc.render(scene, geo, precision="float64")
+    blur = blender_render(scene, geo, BlenderOptions(motion_blur=True, **SMALL))
+    assert np.abs(blur["mag"] - blur_jax["mag"]).max() <= 0.02
+    assert np.abs(blur_jax["mag"] - sharp_jax["mag"]).max() > 0.02  # the blur matters here
+
+
 @needs_blender
 def test_motion_blur_keyframes_follow_the_spin():
     """The CubeSat (as-glossy) spinning in 10 s over 1 s exposures: Cycles' motion blur
@@ -133,13 +145,7 @@ def test_motion_blur_keyframes_follow_the_spin():
     geo = _geometry(
         n=5, duration_s=20, step_s=4, phase_start_deg=30, phase_end_deg=60, exposure_s=1.0
     )
-    sharp_jax = jaxlc.render(scene, geo, precision="float64", options=RenderOptions(blur="off"))
-    sharp = blender_render(scene, geo, BlenderOptions(**SMALL))
-    assert np.abs(sharp["mag"] - sharp_jax["mag"]).max() <= 0.01
-    blur_jax = jaxlc.render(scene, geo, precision="float64")
-    blur = blender_render(scene, geo, BlenderOptions(motion_blur=True, **SMALL))
-    assert np.abs(blur["mag"] - blur_jax["mag"]).max() <= 0.02
-    assert np.abs(blur_jax["mag"] - sharp_jax["mag"]).max() > 0.02  # the blur matters here
+    _sharp_and_blurred_match_jax(scene, geo)
 
 
 @needs_blender
@@ -168,13 +174,7 @@ def test_tumbling_body_keyframed_from_the_same_attitude():
     )
     geo = _geometry(n=5, duration_s=25, step_s=5, phase_start_deg=30, phase_end_deg=60)
     geo["exposure_s"] = 2.0
-    sharp_jax = jaxlc.render(scene, geo, precision="float64", options=RenderOptions(blur="off"))
-    sharp = blender_render(scene, geo, BlenderOptions(**SMALL))
-    assert np.abs(sharp["mag"] - sharp_jax["mag"]).max() <= 0.01
-    blur_jax = jaxlc.render(scene, geo, precision="float64")
-    blur = blender_render(scene, geo, BlenderOptions(motion_blur=True, **SMALL))
-    assert np.abs(blur["mag"] - blur_jax["mag"]).max() <= 0.02
-    assert np.abs(blur_jax["mag"] - sharp_jax["mag"]).max() > 0.02  # the blur matters here
+    _sharp_and_blurred_match_jax(scene, geo)
     # the sharp frames are the tumble's attitude at mid-exposure, as prepared
     prepared = jaxlc.prepare(scene, geo, precision="float64", subsamples=1)
     with jax.enable_x64(True):

@@ -218,6 +218,8 @@ class Tumble(AbstractAttitude):
 
 
 _evaluate64 = jax.jit(Tumble._evaluate)
+#: An attitude's rotations, compiled (host-side float64 set-up runs per dataset curve).
+_rotation64 = jax.jit(lambda attitude, times: attitude.rotation(times))
 
 #: The two tumbling modes: short-axis (about the largest moment) and long-axis.
 TUMBLE_MODES = ("SAM", "LAM")
@@ -292,5 +294,5 @@ def tumble_from_invariants(
     with jax.enable_x64(True):
         ell = inertia * omega
         align = Spin.from_degrees(ell, l_ra_deg, l_dec_deg, 1.0, about_l_deg, np.float64)
-        rotation = np.asarray(align.rotation(np.zeros(1)))[0]
+        rotation = np.asarray(_rotation64(align, np.zeros(1)))[0]
     return Tumble.from_state(inertia, omega, matrix_to_quaternion(rotation), np.float64)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import itertools
 import json
 from pathlib import Path
 
@@ -68,8 +69,6 @@ class TumblePrior:
 
     def corners(self):
         """The 8 corners of the inertia box, (3,) tuples."""
-        import itertools
-
         return list(itertools.product(*self.inertia_kg_m2))
 
 

@@ -225,18 +225,19 @@ def analyse_period(
     fitted = model.fitted(best.frequency_hz, best.n_harmonics)
     trend = model.fitted(0.0, 0)
     decision = _decision(best, periodic, variable, delta_bic, fap, var_p, alternative)
-    second, verdict = {}, "periodic" if periodic else ("aperiodic" if variable else "not variable")
+    verdict = "periodic" if periodic else ("aperiodic" if variable else "not variable")
+    period_s = best.period_s if periodic else NAN
+    second = {}
     if variable and two_periods:
         found = second_period(
             model, grid, t, dy, w, best.frequency_hz, periodic, p_min, p_max,
             BIC_THRESHOLD, FAP_THRESHOLD, n_permutations, np.random.default_rng(seed + 1),
         )  # fmt: skip
         if math.isfinite(found.period_s):
-            verdict, decision = "two periods", found.decision
-            second["period_s"] = found.first_period_s
+            verdict, decision, period_s = "two periods", found.decision, found.first_period_s
         elif periodic:
             decision += f"; {found.decision}"
-        second |= dict(
+        second = dict(
             second_period_s=found.period_s,
             second_best_period_s=found.best_period_s,
             second_delta_bic=found.delta_bic,
@@ -246,7 +247,7 @@ def analyse_period(
     return PeriodResult(
         verdict=verdict,
         variable=bool(variable),
-        period_s=second.pop("period_s", best.period_s if periodic else float("nan")),
+        period_s=period_s,
         period_err_s=f_err / best.frequency_hz**2 if periodic else float("nan"),
         best_period_s=best.period_s,
         harmonic_factor=best.multiple,
