@@ -197,8 +197,9 @@ def plot_corner(samples: pd.DataFrame, path: str | Path, columns=None) -> Path:
     return save_figure(fig, path, dpi=100)
 
 
-def plot_fit(t_s, mag, model_mag, path: str | Path, summary: dict | None = None) -> Path:
-    """Observed magnitudes with the fitted model above the residuals."""
+def plot_fit(t_s, mag, model_mag, path: str | Path, title: str | None = None) -> Path:
+    """Observed magnitudes with the fitted model above the residuals (``title``: the fit's
+    answer in one line)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -212,11 +213,8 @@ def plot_fit(t_s, mag, model_mag, path: str | Path, summary: dict | None = None)
     ax.invert_yaxis()
     ax.set_ylabel("magnitude")
     ax.legend(fontsize="small", frameon=False)
-    if summary is not None:
-        ax.set_title(
-            f"P = {summary['period_s']:.5g} s, pole ({summary['pole_ra_deg']:.1f}°, "
-            f"{summary['pole_dec_deg']:.1f}°), noise {summary['noise_mag']:.3f} mag"
-        )
+    if title is not None:
+        ax.set_title(title)
     r = np.asarray(mag) - np.asarray(model_mag)
     ax2.plot(t_s, r, ".", ms=2, color="tab:blue")
     ax2.axhline(0, color="k", lw=0.5)

@@ -159,8 +159,8 @@ class Scene:
         if self.attitude.model == "tumble":
             raise SceneError(
                 f"{self.source}: [attitude] model = 'tumble' has no single spin axis, and the "
-                "spin fit models a uniform spin; give a scene with model = 'spin' (its "
-                "body_axis) or 'fixed' (body z)"
+                "spin fit models a uniform spin; fit it with --attitude tumble, or give a "
+                "scene with model = 'spin' (its body_axis) or 'fixed' (body z)"
             )
         axis = self.attitude.body_axis if self.attitude.model == "spin" else (0.0, 0.0, 1.0)
         spin = AttitudeSpec(
@@ -173,6 +173,20 @@ class Scene:
             epoch_utc=epoch_utc,
         )
         return dataclasses.replace(self, attitude=spin)
+
+    def with_tumble(
+        self, inertia_kg_m2, omega_body_rad_s, quaternion, epoch_utc: pd.Timestamp | None = None
+    ) -> Scene:
+        """The scene tumbling torque-free from a state (moments along body x, y, z,
+        body-frame ω and body → inertial quaternion at ``epoch_utc``)."""
+        tumble = AttitudeSpec(
+            model="tumble",
+            inertia_kg_m2=tuple(map(float, inertia_kg_m2)),
+            omega_body_rad_s=tuple(map(float, omega_body_rad_s)),
+            quaternion=tuple(map(float, quaternion)),
+            epoch_utc=epoch_utc,
+        )
+        return dataclasses.replace(self, attitude=tumble)
 
 
 def load_scene(path: str | Path) -> Scene:

@@ -93,7 +93,9 @@ class Tumble(AbstractAttitude):
         """The derived motion (traced)."""
         return torque_free_motion(self.inertia_kg_m2, self.omega_body_rad_s)
 
-    def times(self, t_s, inertia_kg_m2=None, omega_body_rad_s=None) -> TumbleTimes:
+    def times(
+        self, t_s, inertia_kg_m2=None, omega_body_rad_s=None, seconds: bool = False
+    ) -> TumbleTimes | np.ndarray:
         """Split float64 seconds into whole periods T_ω, a remainder and the
         precession those periods add (host side, float64).
 
@@ -102,7 +104,13 @@ class Tumble(AbstractAttitude):
             inertia_kg_m2, omega_body_rad_s: the float64 values the model's
                 leaves were rounded from (e.g. the scene's, at any epoch: T_ω and
                 Δψ are invariants of the motion). Default: the model's own.
+            seconds: return the plain seconds in the leaves' dtype instead, split
+                on the device: for a model whose motion changes per evaluation
+                (the tumble fit), where a split made on the host at one state
+                would be wrong at another (float32: ~6e-8 × t × |ω| rad).
         """
+        if seconds:
+            return np.asarray(t_s, dtype=np.float64).astype(leaf_dtype(self))
         inertia = self.inertia_kg_m2 if inertia_kg_m2 is None else inertia_kg_m2
         omega = self.omega_body_rad_s if omega_body_rad_s is None else omega_body_rad_s
         motion = host_motion(inertia, omega)

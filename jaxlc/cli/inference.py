@@ -2,12 +2,17 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 from typing import Annotated
 
 import typer
 
 from jaxlc.cli.app import app, console
+from jaxlc.errors import JaxlcError
+
+#: Reduced χ² above which a fit's best mode is reported as fitting worse than the errors.
+POOR_FIT_CHI2 = 1.5
 
 
 @app.command()
@@ -135,8 +140,20 @@ def fit(
         float | None, typer.Option(help="Longest period searched (default span / 2).")
     ] = None,
     seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
+    attitude: Annotated[
+        str | None,
+        typer.Option(
+            help="'spin' (pole, period, phase) or 'tumble' (torque-free: both periods, "
+            "mode, L, moment ratios); default: 'tumble' for a tumbling scene, else 'spin'."
+        ),
+    ] = None,
+    body_period_s: Annotated[
+        float | None,
+        typer.Option(help="Tumble: T_ω, ω's period in the body (with --period-s as P_ψ)."),
+    ] = None,
 ):
-    """Fit the spin state (pole, period, phase, brightness, noise) to a light curve.
+    """Fit the spin state (pole, period, phase, brightness, noise) to a light curve,
+    or with --attitude tumble a torque-free tumble (P_ψ, T_ω, mode, L, excitation).
 
     Compiled solvers are kept in JAX's persistent cache ($JAXLC_XLA_CACHE,
     default ~/.cache/jaxlc/xla; "off" disables it), so later fits start faster.
@@ -144,6 +161,7 @@ def fit(
     import jaxlc
     from jaxlc.inference.fit import fit_spin
     from jaxlc.inference.mcmc import FitSettings
+    from jaxlc.inference.tumble_fit import fit_tumble, title
     from jaxlc.io.files import check_output
     from jaxlc.xla import enable_persistent_cache
 
@@ -161,6 +179,14 @@ def fit(
         seed=seed,
     )
     sc = jaxlc.load_scene(scene)
+    attitude = attitude or ("tumble" if sc.attitude.model == "tumble" else "spin")
+    if attitude not in ("spin", "tumble"):
+        raise JaxlcError(f"--attitude {attitude!r}: give 'spin' or 'tumble'")
+    if body_period_s is not None and (attitude != "tumble" or period_s is None):
+        raise JaxlcError(
+            "--body-period-s: only with --attitude tumble and --period-s (P_ψ and T_ω together)"
+        )
+    settings = dataclasses.replace(settings, body_period_s=body_period_s)
     lc = jaxlc.read_lightcurve(lightcurve)
     geo = jaxlc.read_geometry(geometry)
     enable_persistent_cache()
@@ -179,7 +205,8 @@ def fit(
         def progress(stage: str, done: int, total: int) -> None:
             bar.update(task, description=stage, completed=done, total=total)
 
-        result = fit_spin(
+        run = fit_spin if attitude == "spin" else fit_tumble
+        result = run(
             sc,
             lc,
             geo,
@@ -190,15 +217,31 @@ def fit(
         )
     iv = result["intervals"]
     d = result["diagnostics"]
+    if attitude == "tumble":
+        p, b = iv["precession_period_s"], iv["body_period_s"]
+        answer = (
+            f"{title(result)}; 90%: P_ψ [{p['p05']:.5g}, {p['p95']:.5g}] s, T_ω "
+            f"[{b['p05']:.5g}, {b['p95']:.5g}] s, L ± {iv['l_radius_deg']['r90']:.1f}°"
+        )
+    else:
+        answer = (
+            f"period {result['period_s']:.6g} s [90%: {iv['period_s']['p05']:.6g}, "
+            f"{iv['period_s']['p95']:.6g}], pole ({result['pole_ra_deg']:.1f}°, "
+            f"{result['pole_dec_deg']:.1f}°) ± {iv['pole_radius_deg']['r90']:.1f}° (90%)"
+        )
     err.print(
-        f"period {result['period_s']:.6g} s [90%: {iv['period_s']['p05']:.6g}, "
-        f"{iv['period_s']['p95']:.6g}], pole ({result['pole_ra_deg']:.1f}°, "
-        f"{result['pole_dec_deg']:.1f}°) ± {iv['pole_radius_deg']['r90']:.1f}° (90%), "
-        f"{len(result['modes'])} modes (best weight {result['best_weight']:.2f}); "
+        f"{answer}, {len(result['modes'])} modes (best weight {result['best_weight']:.2f}); "
         f"chain {d['chain_length_tau']:.0f} τ, acceptance "
         f"{d['acceptance']:.2f}; {result['timings_s']['total_s']:.1f} s → {output}",
         highlight=False,
     )
+    if (result.get("reduced_chi2") or 0.0) > POOR_FIT_CHI2:
+        err.print(
+            f"warning: the best tumble fits the data worse than their errors (reduced χ² "
+            f"{result['reduced_chi2']:.2f}): it may be a local optimum with the right periods "
+            "but another state; raise --starts or check the scene's shape",
+            style="yellow",
+        )
     if not d["converged"]:
         err.print(
             f"warning: chain only {d['chain_length_tau']:.0f} τ long; raise --max-steps",

@@ -26,13 +26,14 @@ import numpy as np
 import pandas as pd
 
 from jaxlc.errors import JaxlcError
-from jaxlc.inference import mcmc
+from jaxlc.inference import mcmc, posterior_modes
 from jaxlc.inference.data import fit_data, soft_clip
 from jaxlc.inference.harmonics import median_step_s
 from jaxlc.inference.mcmc import FitSettings
-from jaxlc.inference.model import MC_NAMES, N_LM, spin_model, to_device
+from jaxlc.inference.model import MC_NAMES, N_LM, spin_model
 from jaxlc.inference.period import analyse_period
 from jaxlc.inference.period_result import distinct_periods
+from jaxlc.inference.posterior_modes import weighted_samples
 from jaxlc.inference.search import multistart
 from jaxlc.io.files import atomic_output
 from jaxlc.scene import Scene
@@ -196,8 +197,10 @@ def fit_spin(
         except mcmc.OutsidePriorError as exc:  # a mode at a bound is not a posterior mode
             log(f"mode {i} left out: {exc}")
             continue
-        runs[i]["instants_per_exposure"] = model.instants_per_exposure
-        runs[i]["blur_tolerance_mag"] = tolerance
+        runs[i]["report"] = {
+            "instants_per_exposure": model.instants_per_exposure,
+            "blur_tolerance_mag": tolerance,
+        }
         tables.append(mcmc.samples_table(runs[i]["chain"], runs[i]["log_prob"], i))
     sampled = [i for i in sampled if i in runs]
     if not sampled:
@@ -206,39 +209,13 @@ def fit_spin(
             f"{settings.mode_delta_chi2:g} lies outside the prior (noise or Δm at a bound); "
             "check the light curve's units (magnitudes) or give --period-s"
         )
-    weights = mcmc.mode_weights([runs[i]["log_evidence"] for i in sampled])
-    for i, w, table in zip(sampled, weights, tables, strict=True):
-        runs[i]["weight"] = float(w)
-        table["weight"] = w / len(table)  # sums to 1 over all samples
-    samples = pd.concat(tables, ignore_index=True)
+    samples = weighted_samples(runs, tables, sampled)
     timings["mcmc_s"] = time.perf_counter() - t2
     timings["total_s"] = time.perf_counter() - t0
 
-    mode_rows = []
-    for i, m in enumerate(modes):
-        row = {"mode": i, **m.describe(best_chi2)}
-        if i in runs:
-            r = runs[i]
-            row["weight"] = r["weight"]
-            row["mcmc"] = {
-                "intervals": mcmc.interval_summary(samples[samples["mode"] == i]),
-                "log_evidence": r["log_evidence"],
-                "acceptance": r["acceptance"],
-                "tau": dict(zip(MC_NAMES, map(float, r["tau"]), strict=True)),
-                "steps": r["steps"],
-                "burn_in": r["burn"],
-                "walkers": settings.walkers,
-                "chain_length_tau": r["chain_length_tau"],
-                "converged": r["converged"],
-                "seconds": r["seconds"],
-                "instants_per_exposure": r["instants_per_exposure"],
-                "blur_tolerance_mag": r["blur_tolerance_mag"],
-            }
-        mode_rows.append(row)
-    # The best mode is the one of highest posterior weight (not of least χ²: a
-    # narrow mode can fit best and still hold little probability). Modes are
-    # listed by weight, the unsampled ones after them by χ².
-    mode_rows.sort(key=lambda r: (-r.get("weight", -1.0), r["chi2"]))
+    mode_rows = posterior_modes.mode_rows(
+        modes, runs, samples, best_chi2, MC_NAMES, settings.walkers, mcmc.interval_summary
+    )
     best = mode_rows[0]
     iv = best["mcmc"]["intervals"]
     summary = {
@@ -279,7 +256,15 @@ def fit_spin(
         "timings_s": timings,
     }
     if out_dir is not None:
-        write_outputs(Path(out_dir), summary, samples, model, data, modes[best["mode"]])
+        write_outputs(
+            Path(out_dir),
+            summary,
+            samples,
+            model,
+            data,
+            modes[best["mode"]].theta_lm,
+            spin_title(summary),
+        )
     summary["samples"] = samples
     return summary
 
@@ -290,11 +275,12 @@ def _distinct(periods, lo: float, hi: float) -> list[float]:
     return distinct_periods(p for p in periods if lo <= p <= hi)
 
 
-def _clean(x):
+def json_clean(x):
+    """A summary made JSON-safe: numpy scalars as Python numbers, non-finite floats as null."""
     if isinstance(x, dict):
-        return {k: _clean(v) for k, v in x.items()}
+        return {k: json_clean(v) for k, v in x.items()}
     if isinstance(x, list | tuple):
-        return [_clean(v) for v in x]
+        return [json_clean(v) for v in x]
     if isinstance(x, np.generic):
         x = x.item()
     if isinstance(x, float) and not math.isfinite(x):
@@ -302,16 +288,36 @@ def _clean(x):
     return x
 
 
-def write_outputs(out_dir: Path, summary: dict, samples: pd.DataFrame, model, data, mode) -> None:
-    """summary.json, samples.parquet, corner.png and fit.png (each written atomically)."""
+def spin_title(summary: dict) -> str:
+    """One line of a spin fit: period, pole and noise."""
+    return (
+        f"P = {summary['period_s']:.5g} s, pole ({summary['pole_ra_deg']:.1f}°, "
+        f"{summary['pole_dec_deg']:.1f}°), noise {summary['noise_mag']:.3f} mag"
+    )
+
+
+def write_outputs(
+    out_dir: Path,
+    summary: dict,
+    samples: pd.DataFrame,
+    model,
+    data,
+    theta_lm,
+    title: str | None = None,
+    corner_columns=None,
+) -> None:
+    """summary.json, samples.parquet, corner.png (the best mode's ``corner_columns``) and
+    fit.png (the data and ``model`` at host LM coordinates ``theta_lm``), each written
+    atomically: the outputs of every fit (spin or tumble)."""
 
     from jaxlc.io.tables import write_table
     from jaxlc.plot import plot_corner, plot_fit
 
     out_dir.mkdir(parents=True, exist_ok=True)
     with atomic_output(out_dir / "summary.json") as tmp:
-        Path(tmp).write_text(json.dumps(_clean(summary), indent=2))
+        Path(tmp).write_text(json.dumps(json_clean(summary), indent=2))
     write_table(samples, out_dir / "samples.parquet")
-    plot_corner(samples[samples["mode"] == summary["best_mode"]], out_dir / "corner.png")
-    m = np.asarray(model.magnitudes(to_device(model, mode.theta_lm)))
-    plot_fit(data.t_s, soft_clip(data.mag, data.limit_mag), m, out_dir / "fit.png", summary)
+    best = samples[samples["mode"] == summary["best_mode"]]
+    plot_corner(best, out_dir / "corner.png", corner_columns)
+    m = np.asarray(model.magnitudes(model.to_device(theta_lm)))
+    plot_fit(data.t_s, soft_clip(data.mag, data.limit_mag), m, out_dir / "fit.png", title)

@@ -75,6 +75,7 @@ class FitSettings:
     mode_delta_chi2: float = 10.0
     seed: int = 0
     period_s: float | None = None  # skip the periodogram: seed from this period
+    body_period_s: float | None = None  # a tumble's T_ω (with period_s its P_ψ)
     min_period_s: float | None = None  # periodogram search range (default: 2.5 steps …
     max_period_s: float | None = None  # … to half the span)
 
@@ -207,28 +208,50 @@ def run_emcee(
         ``tau`` (6,), ``steps`` (kept), ``burn`` (discarded), ``acceptance``,
         ``chain_length_tau``, ``converged``, ``seconds``.
     """
-    import emcee
-
-    log = log or (lambda msg: None)
-    progress = progress or (lambda steps, total, length: None)
     lp = log_prob_fn(model, data, float(mode.theta_lm[3]))
     p0, centre, cov = initial_ball(model, data, mode, settings.walkers, rng)
-    # A broad mode's Laplace ball can reach past the prior's bounds: pull
-    # those walkers halfway back to the mode until all are inside.
-    for _ in range(30):
-        bad = ~np.isfinite(lp(p0))
-        if not bad.any():
-            break
-        p0[bad] = centre + 0.5 * (p0[bad] - centre)
-    else:
+    if not pull_inside(lp, p0, centre):
         raise OutsidePriorError(
             f"emcee: the mode at P = {mode.period_s:.6g} s has zero prior density "
             "(noise or Δm at a bound)"
         )
+    return sample_posterior(lp, p0, centre, cov, settings, rng, log, progress)
+
+
+def pull_inside(lp, p0: np.ndarray, centre: np.ndarray, tries: int = 30) -> bool:
+    """Pull walkers of ``p0`` (in place) halfway back to ``centre`` until ``lp`` is finite
+    for all (a broad mode's Laplace ball can reach past the prior's bounds); False when
+    ``tries`` halvings do not suffice."""
+    for _ in range(tries):
+        bad = ~np.isfinite(lp(p0))
+        if not bad.any():
+            return True
+        p0[bad] = centre + 0.5 * (p0[bad] - centre)
+    return False
+
+
+def sample_posterior(
+    lp,
+    p0: np.ndarray,
+    centre: np.ndarray,
+    cov: np.ndarray,
+    settings: FitSettings,
+    rng,
+    log=None,
+    progress=None,
+) -> dict:
+    """emcee from walkers ``p0`` (W, D) in a mode's Laplace ball (``centre``, ``cov``)
+    with the vectorised log-posterior ``lp`` ((W, D) → (W,)): the two stages of
+    :func:`run_emcee`, for any fit model's coordinates (D = ``p0.shape[1]``)."""
+    import emcee
+
+    log = log or (lambda msg: None)
+    progress = progress or (lambda steps, total, length: None)
+    walkers, dim = p0.shape
     seed = int(rng.integers(2**31))
 
     def sampler(mean, c, stage):
-        s = emcee.EnsembleSampler(settings.walkers, N_MC, lp, vectorize=True, moves=_moves(mean, c))
+        s = emcee.EnsembleSampler(walkers, dim, lp, vectorize=True, moves=_moves(mean, c))
         # reproducible: emcee draws from its own RandomState
         s.random_state = np.random.RandomState(seed + stage).get_state()
         return s
@@ -245,8 +268,9 @@ def run_emcee(
         f"{np.mean(adapt.acceptance_fraction):.2f}"
     )
     main = sampler(mean, cov2, 1)
-    tau = np.full(N_MC, np.inf)
+    tau = np.full(dim, np.inf)
     steps = 0
+    length = 0.0
     while steps < settings.max_steps:
         state = main.run_mcmc(state, settings.block_steps, progress=False)
         steps += settings.block_steps
@@ -264,7 +288,7 @@ def run_emcee(
     return {
         "chain": chain,
         "log_prob": log_prob,
-        "log_evidence": laplace_log_evidence(chain.reshape(-1, N_MC), log_prob.reshape(-1)),
+        "log_evidence": laplace_log_evidence(chain.reshape(-1, dim), log_prob.reshape(-1)),
         "tau": tau,
         "steps": steps,
         "burn": settings.adapt_steps,
@@ -304,39 +328,52 @@ def samples_table(chain: np.ndarray, log_prob: np.ndarray, mode_id: int) -> pd.D
     )
 
 
+def percentiles(values) -> dict:
+    """The 5, 25, 50, 75 and 95 % points of samples (``p05`` … ``p95``, ``median``)."""
+    q = np.percentile(np.asarray(values, np.float64), [5, 25, 50, 75, 95])
+    return dict(zip(("p05", "p25", "median", "p75", "p95"), map(float, q), strict=True))
+
+
 def pole_unit(samples: pd.DataFrame) -> np.ndarray:
-    ra, dec = np.radians(samples["pole_ra_deg"]), np.radians(samples["pole_dec_deg"])
+    """(N, 3) unit pole vectors of posterior samples."""
+    return unit_vectors(samples["pole_ra_deg"], samples["pole_dec_deg"])
+
+
+def unit_vectors(ra_deg, dec_deg) -> np.ndarray:
+    """(N, 3) unit vectors of RA/Dec (deg)."""
+    ra, dec = np.radians(np.asarray(ra_deg)), np.radians(np.asarray(dec_deg))
     return np.column_stack([np.cos(dec) * np.cos(ra), np.cos(dec) * np.sin(ra), np.sin(dec)])
 
 
-def interval_summary(samples: pd.DataFrame) -> dict:
-    """Medians, 50 % and 90 % central intervals, and pole credible radii."""
-    out = {}
-    for col in ("period_s", "dmag", "noise_mag", "pole_dec_deg"):
-        q = np.percentile(samples[col], [5, 25, 50, 75, 95])
-        out[col] = dict(zip(("p05", "p25", "median", "p75", "p95"), map(float, q), strict=True))
-    u = pole_unit(samples)
+def direction_summary(samples: pd.DataFrame, ra_col: str, dec_col: str, name: str) -> dict:
+    """The mean direction of samples of a direction (RA/Dec columns, deg), the RA interval
+    about it (wrapped), and the credible radii: ``{name}_mean``, ``{ra_col}``,
+    ``{name}_radius_deg``."""
+    u = unit_vectors(samples[ra_col], samples[dec_col])
     mean = u.mean(axis=0)
     mean /= np.linalg.norm(mean)
     ra = float(np.degrees(np.mod(np.arctan2(mean[1], mean[0]), 2 * np.pi)))
     dec = float(np.degrees(np.arcsin(mean[2])))
     sep = angle_between_deg(u, mean[None, :])
-    # RA interval about the mean direction (wrapped)
-    dra = (samples["pole_ra_deg"].to_numpy() - ra + 180.0) % 360.0 - 180.0
-    q = np.percentile(dra, [5, 25, 50, 75, 95]) + ra
-    out["pole_ra_deg"] = dict(
-        zip(("p05", "p25", "median", "p75", "p95"), map(float, q % 360.0), strict=True)
-    )
+    dra = (samples[ra_col].to_numpy() - ra + 180.0) % 360.0 - 180.0
+    q = percentiles(dra)
+    return {
+        ra_col: {k: (v + ra) % 360.0 for k, v in q.items()},
+        dec_col: percentiles(samples[dec_col]),
+        f"{name}_mean": {"ra_deg": ra, "dec_deg": dec},
+        f"{name}_radius_deg": {
+            "r50": float(np.percentile(sep, 50)),
+            "r90": float(np.percentile(sep, 90)),
+        },
+    }
+
+
+def interval_summary(samples: pd.DataFrame) -> dict:
+    """Medians, 50 % and 90 % central intervals, and pole credible radii."""
+    out = {col: percentiles(samples[col]) for col in ("period_s", "dmag", "noise_mag")}
+    out.update(direction_summary(samples, "pole_ra_deg", "pole_dec_deg", "pole"))
     ph = np.radians(samples["phase_deg"].to_numpy())
     ph_mean = math.atan2(np.mean(np.sin(ph)), np.mean(np.cos(ph)))
     dph = (np.degrees(ph - ph_mean) + 180.0) % 360.0 - 180.0
-    qp = np.percentile(dph, [5, 25, 50, 75, 95]) + math.degrees(ph_mean)
-    out["phase_deg"] = dict(
-        zip(("p05", "p25", "median", "p75", "p95"), map(float, qp % 360.0), strict=True)
-    )
-    out["pole_mean"] = {"ra_deg": ra, "dec_deg": dec}
-    out["pole_radius_deg"] = {
-        "r50": float(np.percentile(sep, 50)),
-        "r90": float(np.percentile(sep, 90)),
-    }
+    out["phase_deg"] = {k: (v + math.degrees(ph_mean)) % 360.0 for k, v in percentiles(dph).items()}
     return out

@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import ClassVar
 
 import equinox as eqx
 import jax
@@ -46,7 +47,7 @@ from jaxlc.body.attitude import Spin, phase_at_offset_deg, pole_vector, referenc
 from jaxlc.body.mesh import Facets
 from jaxlc.inference.data import FitData, soft_clip
 from jaxlc.rendering.kernel import KernelInputs, SpaceObject, exposure_intensity
-from jaxlc.rendering.prepare import adapt, prepare
+from jaxlc.rendering.prepare import Prepared, adapt, prepare
 from jaxlc.rendering.render import evaluate_instants
 from jaxlc.scene import Scene
 
@@ -60,31 +61,27 @@ MC_NAMES = ("pole_lambda_rad", "pole_sin_beta", "ln_period_s", "phase_rad", "dma
 FLOOR_PER_AREA = 1e-10
 
 
-class SpinModel(eqx.Module):
-    """A spin fit's forward model over its samples (a pytree).
+class FitModel(eqx.Module):
+    """What every fit model holds: the renderer's object and exposures over the fitted
+    samples, and how intensities become magnitudes (a pytree; subclasses add the
+    attitude's parameterisation: :class:`SpinModel`, the tumble's).
 
     Attributes:
         obj: the traced object (its attitude is replaced per θ).
-        inputs: the fitted samples' exposures (times from the fit epoch, split
-            into turns of ``period_ref_s``).
-        period_ref_s: the reference period P_ref (s).
+        inputs: the fitted samples' exposures.
         const_mag: (N,) magnitude of unit I/E per sample.
-        body_axis, body_ref: (3,) spin axis and reference direction in the body frame.
         floor_m2_sr: intensity floor that keeps unlit samples finite in magnitude.
         limit_mag: faint clipping level.
-        adapted: whether the exposures' instants were chosen at a spin
-            (:func:`spin_model`'s ``theta``), not the plan's fixed count.
     """
 
     obj: SpaceObject
     inputs: KernelInputs
-    period_ref_s: jax.Array
     const_mag: jax.Array
-    body_axis: jax.Array
-    body_ref: jax.Array
     floor_m2_sr: jax.Array
     limit_mag: jax.Array
-    adapted: bool = eqx.field(static=True, default=False)
+
+    #: Index of the magnitude offset Δm in the LM coordinates.
+    dmag_index: ClassVar[int] = 5
 
     @property
     def n(self) -> int:
@@ -99,6 +96,52 @@ class SpinModel(eqx.Module):
     @property
     def subsamples(self) -> int:
         return self.inputs.subsamples
+
+    def intensity(self, theta_lm, chunk=None):
+        """(N,) exposure-mean I/E (m² sr⁻¹) at device LM coordinates ``theta_lm``."""
+        raise NotImplementedError
+
+    def magnitudes(self, theta_lm, chunk=None):
+        """(N,) model magnitudes, softly clipped at the faint limit.
+
+        ``chunk``: instants per block of the facet sum (static; default sized
+        for one curve, see :func:`jaxlc.rendering.kernel.time_chunk`). Under
+        ``vmap`` over W parameter vectors pass ``time_chunk(n_facets × W)``.
+        """
+        i = self.intensity(theta_lm, chunk)
+        m = self.const_mag - 2.5 * jnp.log10(i + self.floor_m2_sr) + theta_lm[self.dmag_index]
+        return soft_clip(m, self.limit_mag)
+
+
+def intensity_floor_m2_sr(scene: Scene) -> float:
+    """The intensity floor of a scene's fit models (:data:`FLOOR_PER_AREA` × its area)."""
+    return FLOOR_PER_AREA * float(scene.facets.areas_m2.sum())
+
+
+class SpinModel(FitModel):
+    """A spin fit's forward model over its samples (a pytree; :class:`FitModel`'s
+    fields, then:)
+
+    Attributes:
+        period_ref_s: the reference period P_ref (s); the exposures' times are
+            split into turns of it.
+        body_axis, body_ref: (3,) spin axis and reference direction in the body frame.
+        adapted: whether the exposures' instants were chosen at a spin
+            (:func:`spin_model`'s ``theta``), not the plan's fixed count.
+    """
+
+    period_ref_s: jax.Array
+    body_axis: jax.Array
+    body_ref: jax.Array
+    adapted: bool = eqx.field(static=True, default=False)
+
+    def to_device(self, theta) -> jax.Array:
+        """Host LM coordinates (…, 6) → device coordinates (:func:`to_device`)."""
+        return to_device(self, theta)
+
+    def from_device(self, theta) -> np.ndarray:
+        """Device LM coordinates → host float64 (:func:`from_device`)."""
+        return from_device(self, theta)
 
     def attitude(self, pole_vec, ln_period_ratio, phase) -> Spin:
         """The spin of a pole vector, ln(P / P_ref) and the phase at the fit epoch."""
@@ -121,17 +164,6 @@ class SpinModel(eqx.Module):
         spin = self.attitude(theta_lm[:3], theta_lm[3], theta_lm[4])
         obj = eqx.tree_at(lambda o: o.attitude, self.obj, spin)
         return exposure_intensity(obj, self.inputs, chunk)
-
-    def magnitudes(self, theta_lm, chunk=None):
-        """(N,) model magnitudes, softly clipped at the faint limit.
-
-        ``chunk``: instants per block of the facet sum (static; default sized
-        for one curve, see :func:`jaxlc.rendering.kernel.time_chunk`). Under
-        ``vmap`` over W parameter vectors pass ``time_chunk(n_facets × W)``.
-        """
-        i = self.intensity(theta_lm, chunk)
-        m = self.const_mag - 2.5 * jnp.log10(i + self.floor_m2_sr) + theta_lm[5]
-        return soft_clip(m, self.limit_mag)
 
 
 def spin_model(
@@ -172,13 +204,49 @@ def spin_model(
     """
     period_ref = float(np.float32(period_s))  # exactly the device's reference
     trial = scene.with_spin(period_ref, epoch_utc=data.epoch_utc)
-    options = scene.render
+    prep = fit_preparation(trial, data, exact, directions, max_subsamples, tolerance_mag)
+    b = np.asarray(trial.attitude.body_axis, np.float64)
+    f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
+    model = SpinModel(
+        obj=prep.object,
+        inputs=prep.inputs,
+        const_mag=f32(data.const_mag),
+        floor_m2_sr=f32(intensity_floor_m2_sr(scene) if floor else 0.0),
+        limit_mag=f32(data.limit_mag),
+        period_ref_s=f32(period_ref),
+        body_axis=f32(b),
+        body_ref=f32(reference_direction(b)),
+    )
+    if theta is None or not prep.adaptive:
+        return model
+    t = to_device(model, theta)
+    obj = eqx.tree_at(lambda o: o.attitude, prep.object, model.attitude(t[:3], t[3], t[4]))
+    adapted = adapt([dataclasses.replace(prep, object=obj)], evaluate_instants)[0]
+    return dataclasses.replace(model, inputs=adapted.inputs, adapted=True)
+
+
+def fit_preparation(
+    trial: Scene,
+    data: FitData,
+    exact: bool = True,
+    directions: int = 128,
+    max_subsamples: int | None = None,
+    tolerance_mag: float | None = None,
+) -> Prepared:
+    """The renderer's preparation of a trial scene (its attitude at a trial state) over
+    a fit's samples: what every fit model (spin or tumble) evaluates.
+
+    ``exact`` False: the search model (facets merged into ``directions`` normal
+    bins by :func:`coarsen_facets`, no shadows); ``max_subsamples`` caps the
+    sub-exposures; ``tolerance_mag`` replaces the scene's ``blur_tolerance_mag``.
+    """
+    options = trial.render
     facets = None
     if tolerance_mag is not None:
         options = dataclasses.replace(options, blur_tolerance_mag=float(tolerance_mag))
     if not exact:
         options = dataclasses.replace(options, shadows="off")
-        facets = coarsen_facets(scene.body[1], directions)
+        facets = coarsen_facets(trial.body[1], directions)
     if max_subsamples is not None:
         options = dataclasses.replace(
             options, max_subsamples=min(options.max_subsamples, max_subsamples)
@@ -187,28 +255,9 @@ def spin_model(
             options = dataclasses.replace(
                 options, subsamples=min(options.subsamples, max_subsamples)
             )
-    prep = prepare(
+    return prepare(
         trial, data.geometry, options, rows=data.rows, origin_utc=data.epoch_utc, facets=facets
     )
-    b = np.asarray(trial.attitude.body_axis, np.float64)
-    area = float(scene.facets.areas_m2.sum())
-    f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
-    model = SpinModel(
-        obj=prep.object,
-        inputs=prep.inputs,
-        period_ref_s=f32(period_ref),
-        const_mag=f32(data.const_mag),
-        body_axis=f32(b),
-        body_ref=f32(reference_direction(b)),
-        floor_m2_sr=f32(FLOOR_PER_AREA * area if floor else 0.0),
-        limit_mag=f32(data.limit_mag),
-    )
-    if theta is None or not prep.adaptive:
-        return model
-    t = to_device(model, theta)
-    obj = eqx.tree_at(lambda o: o.attitude, prep.object, model.attitude(t[:3], t[3], t[4]))
-    adapted = adapt([dataclasses.replace(prep, object=obj)], evaluate_instants)[0]
-    return dataclasses.replace(model, inputs=adapted.inputs, adapted=True)
 
 
 # ---------------------------------------------------------------------------

@@ -25,7 +25,6 @@ from jaxlc.inference.model import (
     N_LM,
     SpinModel,
     angle_between_deg,
-    from_device,
     pole_radec_deg,
     spin_model,
     to_device,
@@ -167,11 +166,11 @@ def least_squares(
 
     Args:
         model: the forward model over ``data``'s samples.
-        starts: (K, 6) LM coordinates.
+        starts: (K, P) LM host coordinates of ``model`` (P = 6 for a spin).
         max_steps: LM iterations (all starts run this many under ``vmap``).
 
     Returns:
-        (K, 6) optima, (K,) their sums of squared residuals (weights 1/σ with
+        (K, P) optima, (K,) their sums of squared residuals (weights 1/σ with
         σ the data errors, or 1 mag where unknown; +inf where the solve failed)
         and the :class:`SolveReport`.
     """
@@ -181,9 +180,9 @@ def least_squares(
     per_start = len(model.inputs.weight) * model.obj.n_facets
     batch = int(min(len(starts), max(1, 2**21 // per_start)))
     theta, cost, converged, at_limit = _solve(
-        model, mag, weight, to_device(model, starts), max_steps, batch
+        model, mag, weight, model.to_device(starts), max_steps, batch
     )
-    theta, cost = from_device(model, theta), np.asarray(cost, np.float64)
+    theta, cost = model.from_device(theta), np.asarray(cost, np.float64)
     converged, at_limit = np.asarray(converged), np.asarray(at_limit)
     failed = ~np.isfinite(cost) | ~np.all(np.isfinite(theta), axis=1) | ~(converged | at_limit)
     cost = np.where(failed, np.inf, cost)
@@ -238,10 +237,11 @@ def _batch_magnitudes(model: SpinModel, thetas):
 
 
 def match_offset(model: SpinModel, data: FitData, starts: np.ndarray) -> np.ndarray:
-    """Set each start's Δm to the median offset between data and model."""
-    m = np.asarray(_batch_magnitudes(model, to_device(model, starts)), np.float64)
+    """Set each start's Δm (LM coordinate ``model.dmag_index``) to the median offset
+    between data and model (any fit model: :class:`SpinModel`, the tumble's)."""
+    m = np.asarray(_batch_magnitudes(model, model.to_device(starts)), np.float64)
     out = starts.copy()
-    out[:, 5] = np.median(soft_clip(data.mag, data.limit_mag)[None, :] - m, axis=1)
+    out[:, model.dmag_index] = np.median(soft_clip(data.mag, data.limit_mag)[None, :] - m, axis=1)
     return out
 
 

@@ -1,0 +1,200 @@
+"""The tumble fit's posterior: log-probability, a mode's Laplace ball, sample summaries.
+
+Priors (MCMC coordinates, :mod:`jaxlc.inference.tumble_model`): the moment
+coordinates uniform in :data:`LN_MOMENT_RATIO_PRIOR`; ω log-uniform in
+magnitude within a factor :data:`~jaxlc.inference.mcmc.PERIOD_PRIOR_FACTOR`
+of the mode's and uniform in direction; a uniform attitude (Haar measure in
+the rotation-vector chart, |δ| < π); Δm uniform in ±10 mag; noise
+log-uniform in [10⁻³, 2] mag.
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pandas as pd
+
+from jaxlc.inference import mcmc
+from jaxlc.inference.data import FitData, soft_clip
+from jaxlc.inference.laplace import NOISE_BOUNDS_MAG
+from jaxlc.inference.mcmc import DMAG_BOUNDS, PERIOD_PRIOR_FACTOR
+from jaxlc.inference.tumble_model import (
+    N_TUMBLE_MC,
+    TumbleModel,
+    angular_momentum_radec_deg,
+    lm_to_mc,
+    mc_to_lm,
+    motion_invariants,
+    state_of,
+)
+from jaxlc.inference.tumble_search import TumbleMode
+from jaxlc.rendering.kernel import time_chunk
+from jaxlc.xla import filter_jit
+
+#: Prior range of the moment coordinates x (ln S_i/S_z = 6 tanh(x/6): ratios within
+#: 1/300 … 300; an axisymmetric body's light curve barely constrains them).
+LN_MOMENT_RATIO_PRIOR = (-10.0, 10.0)
+
+
+@filter_jit
+def _log_prob(model: TumbleModel, mag, err2, q_mode, bounds, thetas):
+    """(W,) log-posterior of (W, 10) MCMC coordinates about ``q_mode``."""
+    chunk = time_chunk(model.obj.n_facets * thetas.shape[0])
+
+    def one(theta):
+        ln_rate = 0.5 * jnp.log(jnp.sum(theta[2:5] ** 2))
+        angle = jnp.sqrt(jnp.sum(theta[5:8] ** 2) + 1e-30)
+        inside = (
+            jnp.all(theta[0:2] >= bounds[0, 0])
+            & jnp.all(theta[0:2] <= bounds[1, 0])
+            & (ln_rate >= bounds[0, 1])
+            & (ln_rate <= bounds[1, 1])
+            & (angle < jnp.pi)
+            & (theta[8] >= bounds[0, 2])
+            & (theta[8] <= bounds[1, 2])
+            & (theta[9] >= bounds[0, 3])
+            & (theta[9] <= bounds[1, 3])
+        )
+        m = model.magnitudes(mc_to_lm(theta, q_mode), chunk=chunk)
+        var = err2 + jnp.exp(2 * theta[9])
+        ll = -0.5 * jnp.sum((m - mag) ** 2 / var + jnp.log(2 * jnp.pi * var))
+        # log-uniform |ω| (density ∝ |ω|⁻³ in ℝ³); Haar measure in the rotation vector
+        prior = -3.0 * ln_rate + 2.0 * jnp.log(jnp.sin(0.5 * angle) / (0.5 * angle))
+        return jnp.where(inside & jnp.isfinite(ll), ll + prior, -jnp.inf)
+
+    return jax.vmap(one)(thetas)
+
+
+def log_prob_fn(model: TumbleModel, data: FitData, centre: np.ndarray, q_mode: np.ndarray):
+    """Jitted, vmapped log-posterior (W, 10) → (W,) numpy about one mode (module priors)."""
+    mag = jnp.asarray(soft_clip(data.mag, data.limit_mag), jnp.float32)
+    err2 = jnp.asarray(data.mag_err**2, jnp.float32)
+    ln_rate = 0.5 * math.log(float(np.sum(centre[2:5] ** 2)))
+    factor = math.log(PERIOD_PRIOR_FACTOR)
+    noise = tuple(math.log(b) for b in NOISE_BOUNDS_MAG)
+    bounds = jnp.asarray(
+        [
+            [LN_MOMENT_RATIO_PRIOR[0], ln_rate - factor, DMAG_BOUNDS[0], noise[0]],
+            [LN_MOMENT_RATIO_PRIOR[1], ln_rate + factor, DMAG_BOUNDS[1], noise[1]],
+        ],
+        jnp.float32,
+    )
+    q = jnp.asarray(q_mode, jnp.float32)
+
+    def log_prob(thetas: np.ndarray) -> np.ndarray:
+        t = jnp.asarray(thetas, jnp.float32)
+        return np.asarray(_log_prob(model, mag, err2, q, bounds, t), np.float64)
+
+    return log_prob
+
+
+@filter_jit
+def _value_and_jacobian(model: TumbleModel, q_mode, x9):
+    def mags(x):
+        m = model.magnitudes(mc_to_lm(jnp.concatenate([x, jnp.zeros(1, x.dtype)]), q_mode))
+        return m, m
+
+    jac, value = jax.jacfwd(mags, has_aux=True)(x9)
+    return value, jac
+
+
+#: Gauss–Newton steps that move a mode's centre to the sampled model's optimum.
+RECENTRE_STEPS = 3
+
+
+def initial_ball(model: TumbleModel, data: FitData, mode: TumbleMode, walkers: int, rng):
+    """Walkers (W, 10) from the Laplace approximation at a mode, its centre (10,), the
+    covariance (10, 10) and q_mode.
+
+    The centre is first moved by up to :data:`RECENTRE_STEPS` Gauss–Newton steps to
+    the optimum of ``model`` (the sampled model's sub-exposures are chosen at the
+    mode); the noise coordinate starts at the excess scatter of its residuals over the
+    data's errors (at least the prior's floor); covariance σ² (JᵀJ)⁻¹ of the first
+    nine coordinates, ln σ ± 1/√(2N).
+    """
+    centre, q_mode = lm_to_mc(mode.theta_lm, max(mode.noise_mag, NOISE_BOUNDS_MAG[0]))
+    q = jnp.asarray(q_mode, jnp.float32)
+    mag = soft_clip(data.mag, data.limit_mag)
+    err2 = data.mag_err**2
+
+    def at(x9):
+        m, jac = _value_and_jacobian(model, q, jnp.asarray(x9, jnp.float32))
+        r = np.asarray(m, np.float64) - mag
+        noise = math.sqrt(max(float(np.mean(r**2 - err2)), NOISE_BOUNDS_MAG[0] ** 2))
+        sigma = np.sqrt(err2 + noise**2)
+        return r, np.asarray(jac, np.float64), noise, sigma, float(np.sum((r / sigma) ** 2))
+
+    x9 = centre[:9].copy()
+    r, jac, noise, sigma, chi2 = at(x9)
+    for _ in range(RECENTRE_STEPS):
+        step, *_ = np.linalg.lstsq(jac / sigma[:, None], -r / sigma, rcond=None)
+        got = at(x9 + step)
+        if not (np.isfinite(got[4]) and got[4] < chi2):
+            break
+        x9 = x9 + step
+        r, jac, noise, sigma, chi2 = got
+    centre[:9] = x9
+    centre[9] = math.log(noise) + 1.0 / data.n  # inside the prior at the noise floor
+    jw = jac / sigma[:, None]
+    cov = np.zeros((N_TUMBLE_MC, N_TUMBLE_MC))
+    try:
+        c9 = np.linalg.inv(jw.T @ jw + 1e-8 * np.eye(9))
+        c9 = 0.5 * (c9 + c9.T)
+        np.linalg.cholesky(c9)
+        cov[:9, :9] = c9
+    except np.linalg.LinAlgError:
+        cov[:9, :9] = np.diag(np.full(9, 1e-3))
+    cov[9, 9] = 1.0 / (2 * data.n)
+    p0 = centre + rng.standard_normal((walkers, N_TUMBLE_MC)) @ np.linalg.cholesky(cov).T
+    return p0, centre, cov, q_mode
+
+
+def samples_table(chain: np.ndarray, log_prob: np.ndarray, mode_id: int, q_mode, rate_ref):
+    """A chain (steps, walkers, 10) as a table of what the states mean (user units)."""
+    steps, walkers, _ = chain.shape
+    flat = chain.reshape(-1, N_TUMBLE_MC)
+    lm = mc_to_lm(flat, np.asarray(q_mode, np.float64))
+    inertia, omega, q = state_of(lm, rate_ref)
+    inv = motion_invariants(inertia, omega)
+    ra, dec = angular_momentum_radec_deg(inertia, omega, q)
+    return pd.DataFrame(
+        {
+            "mode": mode_id,
+            "step": np.repeat(np.arange(steps), walkers),
+            "walker": np.tile(np.arange(walkers), steps),
+            "precession_period_s": inv["precession_period_s"],
+            "body_period_s": inv["body_period_s"],
+            "tumble_mode": np.where(inv["sam"], "SAM", "LAM"),
+            "excitation": inv["excitation"],
+            "l_ra_deg": ra,
+            "l_dec_deg": dec,
+            "inertia_x_over_z": inertia[:, 0] / inertia[:, 2],
+            "inertia_y_over_z": inertia[:, 1] / inertia[:, 2],
+            "dmag": flat[:, 8],
+            "noise_mag": np.exp(flat[:, 9]),
+            "log_prob": log_prob.reshape(-1),
+        }
+    )
+
+
+def interval_summary(samples: pd.DataFrame) -> dict:
+    """Medians and 50 %/90 % intervals, L's mean direction and credible radii, and the
+    share of samples in each tumbling mode."""
+    out = {
+        col: mcmc.percentiles(samples[col])
+        for col in (
+            "precession_period_s",
+            "body_period_s",
+            "excitation",
+            "inertia_x_over_z",
+            "inertia_y_over_z",
+            "dmag",
+            "noise_mag",
+        )
+    }
+    out.update(mcmc.direction_summary(samples, "l_ra_deg", "l_dec_deg", "l"))
+    out["sam_fraction"] = float(np.mean(samples["tumble_mode"] == "SAM"))
+    return out
