@@ -117,6 +117,36 @@ def test_the_fit_model_is_the_renderer(cylinder_tumble):
     np.testing.assert_allclose(m, data.mag, atol=2e-4)
 
 
+def test_mirror_twins_give_the_same_light_curve(cylinder_tumble):
+    """With the Sun and the observer in one plane (the equator), a body mirror-symmetric
+    about its x = 0 and y = 0 planes (the cylinder) has the same light curve in a state
+    and in its mirror twins about those axes, and the twin's L is −(L − 2(L·n)n)."""
+    scene = cylinder_tumble
+    geo = jaxlc.synthetic_geometry(duration_s=300, phase_start_deg=30, phase_end_deg=90)
+    data = fit_data(jaxlc.render(scene, geo), geo, default_exposure_s=scene.exposure_s)
+    tumble = scene.attitude.tumble()
+    rate = 0.1
+    theta = tm.theta_of(
+        np.asarray(tumble.inertia_kg_m2),
+        np.asarray(tumble.omega_body_rad_s),
+        np.asarray(tumble.quaternion),
+        rate,
+    )
+    twins = ts.mirror_twins(theta[None], data, rate)  # b = x, y, z
+    model = tm.tumble_model(scene, data, theta, rate)
+    m = np.asarray(model.magnitudes(model.to_device(theta)), np.float64)
+    for k in (0, 1):
+        mk = np.asarray(model.magnitudes(model.to_device(twins[k])), np.float64)
+        np.testing.assert_allclose(mk, m, atol=5e-4)
+    ell = radec_unit(*tm.angular_momentum_radec_deg(*tm.state_of(theta, rate)))
+    n = np.array([0.0, 0.0, 1.0])  # the synthetic geometry's Sun–observer plane
+    for twin in twins:
+        got = radec_unit(*tm.angular_momentum_radec_deg(*tm.state_of(twin, rate)))
+        np.testing.assert_allclose(got, -(ell - 2 * (ell @ n) * n), atol=1e-9)
+    inv = tm.motion_invariants(*tm.state_of(np.vstack([theta, twins]), rate)[:2])
+    np.testing.assert_allclose(inv["body_period_s"], inv["body_period_s"][0], rtol=1e-9)
+
+
 def test_frequency_hypotheses_contain_the_motion():
     """The shipped tumbler's two reported periods are 1/P_ψ − 1/T_ω and T_ω/3."""
     f_psi, f_omega = 1 / 47.98, 1 / 166.06

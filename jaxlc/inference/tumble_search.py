@@ -24,8 +24,11 @@ import dataclasses
 import itertools
 import math
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
+from jaxlc.body.attitude import matrix_to_quaternion, quaternion_to_matrix
 from jaxlc.errors import JaxlcError
 from jaxlc.inference.data import FitData
 from jaxlc.inference.harmonics import HarmonicModel, bic, median_step_s
@@ -58,6 +61,8 @@ RATIO_TOLERANCE = 0.02
 #: What one observed frequency may be, j f_ψ + k f_ω: a mirror-symmetric body shows
 #: twice its frequencies (a tumbling cylinder over 10 minutes: 2 f_ψ − 2 f_ω alone).
 ONE_PERIOD_COMBINATIONS = ((1, 0), (2, 0), (1, -1), (2, -2), (1, 1), (2, 2), (0, 1), (0, 2))
+#: Best search optima whose mirror twins (:func:`mirror_twins`) are refined too.
+MIRRORED = 2
 #: Hypotheses for (f_ψ, f_ω) the starts are spread over (:func:`rank_hypotheses`).
 RANKED = 6
 
@@ -249,6 +254,32 @@ def tumble_starts(
     return np.stack(starts)
 
 
+def mirror_twins(theta: np.ndarray, data: FitData, rate_ref_rad_s: float) -> np.ndarray:
+    """(3K, 10) the mirror images of K states through the Sun–observer plane at the
+    middle fitted sample, one per body axis b: R' = M R B (M, B the reflections through
+    that plane and through the body plane normal to b), ω' = −B ω (a pseudovector).
+
+    A body mirror-symmetric about a principal plane gives the same light curve in
+    both while the Sun–observer plane stays put (a tumbling cylinder over 10 minutes:
+    the best mode was the true state's twin, its L 0.1° from the mirror image of the
+    true L); these starts put both into the modes, as the spin fit's reversed poles do.
+    """
+    mid = data.rows[data.n // 2]
+    n = np.cross(data.geometry.sun_dir[mid], data.geometry.obs_dir[mid])
+    n = n / np.linalg.norm(n)
+    m = np.eye(3) - 2.0 * np.outer(n, n)
+    inertia, omega, q = state_of(theta, rate_ref_rad_s)
+    with jax.enable_x64(True):
+        rot = np.asarray(quaternion_to_matrix(jnp.asarray(q, jnp.float64)))
+    out = []
+    for b in np.eye(3):
+        body = np.eye(3) - 2.0 * np.outer(b, b)
+        twin = m[None] @ rot @ body[None]
+        q_twin = matrix_to_quaternion(twin)
+        out.append(theta_of(inertia, -omega @ body.T, q_twin, rate_ref_rad_s, theta[:, 9]))
+    return np.concatenate(out)
+
+
 def distinct_tumbles(
     theta: np.ndarray,
     cost: np.ndarray,
@@ -319,21 +350,27 @@ def tumble_multistart(
             "light curve and geometry"
         )
     init = np.stack([c[0] for c in candidates])
+    members = [c[2] for c in candidates]
+    twins = mirror_twins(init[:MIRRORED], data, rate_ref_rad_s)
+    init = np.concatenate([init, twins])
+    members += [0] * len(twins)  # started from no search solve
     plan = init[np.argmax(np.linalg.norm(init[:, 2:5], axis=1))]
     exact = tumble_model(scene, data, plan, rate_ref_rad_s, exact=True)
     refined, rcost, r2 = least_squares(exact, data, init, refine_steps, "refine")
     log(r2.describe())
     no_errors = np.all(data.mag_err == 0)
+    # Refinement can land two starts (a state and its twin) on one optimum: merge again.
+    merged = distinct_tumbles(refined, rcost, rate_ref_rad_s, max_modes=max_modes + MIRRORED)
+    starts_of = {th.tobytes(): k for th, k in zip(refined, members, strict=True)}
     modes = [
         TumbleMode(
             theta_lm=th,
             chi2=float(c),
-            starts=members,
+            starts=starts_of[th.tobytes()],
             noise_mag=math.sqrt(c / max(data.n - N_TUMBLE_LM, 1)) if no_errors else 0.0,
             rate_ref_rad_s=rate_ref_rad_s,
         )
-        for (_, _, members), th, c in zip(candidates, refined, rcost, strict=True)
-        if np.isfinite(c)
+        for th, c, _n in merged
     ]
     if not modes:
         raise JaxlcError(f"tumble fit: every refined solve failed ({r2.describe()})")
