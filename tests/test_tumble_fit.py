@@ -103,15 +103,8 @@ def test_the_fit_model_is_the_renderer(cylinder_tumble):
     geo = jaxlc.synthetic_geometry(duration_s=600, phase_start_deg=30, phase_end_deg=90)
     lc = jaxlc.render(scene, geo)
     data = fit_data(lc, geo, default_exposure_s=scene.exposure_s)
-    offset_s = (data.epoch_utc - scene.attitude.epoch_utc).total_seconds()
-    truth = scene.attitude.tumble().at_offset(offset_s)
     rate = 0.1
-    theta = tm.theta_of(
-        np.asarray(truth.inertia_kg_m2),
-        np.asarray(truth.omega_body_rad_s),
-        np.asarray(truth.quaternion),
-        rate,
-    )
+    theta = tm.truth_theta(scene, data, rate)
     model = tm.tumble_model(scene, data, theta, rate, adapted=True)
     m = np.asarray(model.magnitudes(model.to_device(theta)), np.float64)
     np.testing.assert_allclose(m, data.mag, atol=2e-4)
@@ -124,14 +117,8 @@ def test_mirror_twins_give_the_same_light_curve(cylinder_tumble):
     scene = cylinder_tumble
     geo = jaxlc.synthetic_geometry(duration_s=300, phase_start_deg=30, phase_end_deg=90)
     data = fit_data(jaxlc.render(scene, geo), geo, default_exposure_s=scene.exposure_s)
-    tumble = scene.attitude.tumble()
     rate = 0.1
-    theta = tm.theta_of(
-        np.asarray(tumble.inertia_kg_m2),
-        np.asarray(tumble.omega_body_rad_s),
-        np.asarray(tumble.quaternion),
-        rate,
-    )
+    theta = tm.truth_theta(scene, data, rate)
     twins = ts.mirror_twins(theta[None], data, rate)  # b = x, y, z
     model = tm.tumble_model(scene, data, theta, rate)
     m = np.asarray(model.magnitudes(model.to_device(theta)), np.float64)

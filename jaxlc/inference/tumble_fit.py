@@ -33,6 +33,7 @@ from jaxlc.inference.mcmc import FitSettings
 from jaxlc.inference.period import analyse_period
 from jaxlc.inference.posterior_modes import mode_rows, weighted_samples
 from jaxlc.inference.tumble_model import (
+    N_TUMBLE_LM,
     N_TUMBLE_MC,
     TUMBLE_MC_NAMES,
     tumble_model,
@@ -129,8 +130,9 @@ def fit_tumble(
         log=log,
     )
     timings["map_s"] = time.perf_counter() - t1
+    dof = max(data.n - N_TUMBLE_LM, 1)
     if np.all(data.mag_err == 0):  # χ² in units of the best mode's residual variance
-        var = modes[0].chi2 / max(data.n - 10, 1)
+        var = modes[0].chi2 / dof
         modes = [dataclasses.replace(m, chi2=m.chi2 / var) for m in modes]
     best_chi2 = modes[0].chi2
 
@@ -193,7 +195,7 @@ def fit_tumble(
         "epoch_utc": data.epoch_utc.isoformat(),
         # χ² per degree of freedom of the best mode with the data's own errors (null
         # without errors): well above 1, the state is a local optimum or the shape is wrong.
-        "reduced_chi2": (best["chi2"] / max(data.n - 10, 1) if np.all(data.mag_err > 0) else None),
+        "reduced_chi2": best["chi2"] / dof if np.all(data.mag_err > 0) else None,
         "intervals": iv,
         "map": {k: best[k] for k in ("inertia_ratios", "omega_body_rad_s", "quaternion")},
         "best_mode": best["mode"],

@@ -147,6 +147,20 @@ def theta_of(inertia, omega_rad_s, quaternion, rate_ref_rad_s: float, dmag=0.0) 
     )
 
 
+def truth_theta(scene: Scene, data: FitData, rate_ref_rad_s: float) -> np.ndarray:
+    """(10,) host LM coordinates of a tumbling scene's own state at the fit epoch (Δm = 0):
+    the truth of a fit to a light curve rendered from ``scene``."""
+    tumble = scene.attitude.tumble()
+    if scene.attitude.epoch_utc is not None:
+        tumble = tumble.at_offset((data.epoch_utc - scene.attitude.epoch_utc).total_seconds())
+    return theta_of(
+        np.asarray(tumble.inertia_kg_m2),
+        np.asarray(tumble.omega_body_rad_s),
+        np.asarray(tumble.quaternion),
+        rate_ref_rad_s,
+    )
+
+
 def tumble_model(
     scene: Scene,
     data: FitData,
