@@ -5,7 +5,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 DEMO   := build/demo
 
-.PHONY: setup demo test bench lint format meshes clean
+.PHONY: setup demo test bench paper lint format meshes clean
 
 BLENDER_VENV  := .venv-blender
 BLENDER_STAMP := $(BLENDER_VENV)/.installed
@@ -48,6 +48,14 @@ bench: setup
 	$(BIN)/python experiments/bench_render.py
 	$(BIN)/python experiments/bench_geometry.py
 	$(BIN)/python experiments/pareto.py
+
+## paper: the seed paper's figures and tables (experiments/paper/, ~5 min on 2 cores)
+paper: setup
+	$(BIN)/python experiments/paper/falcon9_vs_cylinder.py
+	$(BIN)/python experiments/paper/motion_blur.py
+	$(BIN)/python experiments/paper/blender_calibration.py
+	$(BIN)/python experiments/paper/cost.py
+	@echo "paper figures and tables: experiments/results/paper/ (see experiments/README.md)"
 
 ## lint: ruff
 lint: setup

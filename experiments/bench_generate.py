@@ -32,7 +32,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import subprocess
 import sys
 import tempfile
@@ -44,6 +43,8 @@ import pandas as pd
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
+
+from run_info import provenance  # noqa: E402
 
 import jaxlc  # noqa: E402
 from jaxlc.dataset import draw_curve, load_config  # noqa: E402
@@ -285,22 +286,14 @@ def main(argv=None) -> int:
                     ),
                 )
     df = pd.DataFrame(rows)
-    import jax
-
     df.attrs.update(
-        {
-            "generator": "experiments/bench_generate.py",
-            "config": str(CONFIG.relative_to(HERE.parent)),
-            "count": str(count),
-            "identical_mag_across_worker_counts": str(all(same)),
-            "jaxlc": jaxlc.__version__,
-            "jax": jax.__version__,
-            "backend": jax.default_backend(),
-            "cpu_count": str(os.cpu_count()),
-            "machine": f"{platform.machine()} {platform.processor() or ''}".strip(),
-            "date_utc": pd.Timestamp.now(tz="UTC").strftime("%Y-%m-%dT%H:%M:%SZ"),
-            "quick": str(args.quick),
-        }
+        provenance(
+            "experiments/bench_generate.py",
+            config=CONFIG.relative_to(HERE.parent),
+            count=count,
+            identical_mag_across_worker_counts=all(same),
+            quick=args.quick,
+        )
     )
     print_table(df)
     print(f"identical magnitudes for every worker count: {all(same)}")

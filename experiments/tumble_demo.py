@@ -28,24 +28,15 @@ import pandas as pd
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 
+from paper.common import demo_pass  # noqa: E402
+
 import jaxlc  # noqa: E402
-from jaxlc.geometry.observe import geometry_table  # noqa: E402
-from jaxlc.geometry.sites import get_site  # noqa: E402
-from jaxlc.geometry.tle import read_tles  # noqa: E402
 from jaxlc.inference import periodogram  # noqa: E402
 from jaxlc.inference.period import analyse_period  # noqa: E402
 from jaxlc.inference.period_result import fold_phase  # noqa: E402
 from jaxlc.inference.two_periods import lattice_combination  # noqa: E402
 
 OUT = HERE / "results" / "tumble_demo.png"
-TLE = HERE.parent / "data" / "tle" / "falcon9_rb.tle"
-
-
-def demo_pass() -> pd.DataFrame:
-    """The demo's geometry: Falcon 9 R/B 45921 from Mt Stromlo, 20 min at 1 s."""
-    tle = next(t for t in read_tles(TLE) if t.norad_id == 45921)
-    start = pd.Timestamp("2020-08-10T18:00:00Z")
-    return geometry_table(tle, get_site("mt-stromlo"), start, 1200.0, 1.0, 1.0)
 
 
 def main(argv=None) -> pd.DataFrame:

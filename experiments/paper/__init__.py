@@ -1,0 +1,1 @@
+"""Reproductions of the seed paper's results (``make paper``): one script per figure."""
