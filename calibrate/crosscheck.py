@@ -56,13 +56,18 @@ def same_material(scene: Scene) -> Scene:
     return dataclasses.replace(scene, materials=tuple(mats))
 
 
-def crosscheck_geometry(frames: int = 24, duration_s: float = 1200.0) -> pd.DataFrame:
+def crosscheck_geometry(
+    frames: int = 24,
+    duration_s: float = 1200.0,
+    phase_start_deg: float = 10.0,
+    phase_end_deg: float = 140.0,
+) -> pd.DataFrame:
     """A synthetic pass sampled at ``frames`` exposures of 1 s."""
     return jaxlc.synthetic_geometry(
         duration_s=duration_s,
         step_s=duration_s / frames,
-        phase_start_deg=10,
-        phase_end_deg=140,
+        phase_start_deg=phase_start_deg,
+        phase_end_deg=phase_end_deg,
         range_start_m=1.0e6,
         range_end_m=2.0e6,
         sun_dec_deg=35,

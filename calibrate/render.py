@@ -55,18 +55,25 @@ class Calibration:
         return self.m_ff - self.i_mb
 
 
-def _parts(scene: jaxlc.Scene):
+def mesh_parts(scene: jaxlc.Scene):
+    """The scene's mesh (at its scale) part by part, for a Blender job.
+
+    Returns:
+        (parts: (name, vertices (V, 3) m, faces (M, 3)) per part, triangle_ids: (M,)
+        index of each part's triangles in the mesh, radius: farthest vertex (m)).
+    """
     mesh = scene.mesh  # at the scene's scale
-    parts = []
+    parts, ids = [], []
     for k, name in enumerate(mesh.part_names):
-        faces = mesh.faces[mesh.face_part == k]
-        used, inverse = np.unique(faces, return_inverse=True)
-        parts.append((name, mesh.vertices_m[used], inverse.reshape(faces.shape)))
+        tri = np.flatnonzero(mesh.face_part == k)
+        used, inverse = np.unique(mesh.faces[tri], return_inverse=True)
+        parts.append((name, mesh.vertices_m[used], inverse.reshape(-1, 3)))
+        ids.append(tri)
     radius = float(np.max(np.linalg.norm(mesh.vertices_m, axis=1)))
-    return parts, radius
+    return parts, ids, radius
 
 
-def _quaternions(prepared: jaxlc.Prepared) -> np.ndarray:
+def keyframe_quaternions(prepared: jaxlc.Prepared) -> np.ndarray:
     """(n, K, 4) body→inertial quaternions at each exposure's K prepared instants."""
     q = matrix_to_quaternion(jaxlc.rotation_matrices(prepared))
     q = q.reshape(prepared.exposures.n_rows, prepared.exposures.subsamples, 4)
@@ -76,6 +83,26 @@ def _quaternions(prepared: jaxlc.Prepared) -> np.ndarray:
         flip = np.sum(q[:, k] * q[:, k - 1], axis=1) < 0
         q[flip, k] *= -1.0
     return q
+
+
+def camera_setup(options: BlenderOptions, radius_m: float, range_m: np.ndarray):
+    """The job's camera, its per-frame arrays, and each frame's pixel footprint.
+
+    Returns:
+        (camera dict, {"camera_distance", ["fov_rad"]} (n,) arrays, (n,) area in m²
+        at the object that one pixel covers, perpendicular to the view).
+    """
+    n_px = options.resolution
+    if options.camera == "ortho":
+        ortho = 2.2 * radius_m
+        camera = {"mode": "ortho", "ortho_scale": ortho, "clip_end": 10.0 * radius_m + 10.0}
+        per_frame = {"camera_distance": np.full(len(range_m), 2.0 * radius_m + 1.0)}
+        return camera, per_frame, np.full(len(range_m), (ortho / n_px) ** 2)
+    d_blender = np.asarray(range_m) / options.scale
+    fov = 2.0 * np.arctan(1.15 * radius_m / d_blender)
+    camera = {"mode": "perspective", "clip_start": 1e-3, "clip_end": 10.0 * float(d_blender.max())}
+    footprint = (2.0 * d_blender * np.tan(fov / 2.0) / n_px) ** 2
+    return camera, {"camera_distance": d_blender, "fov_rad": fov}, footprint
 
 
 def blender_render(
@@ -115,7 +142,7 @@ def blender_render(
         )
     scene, table, geo = prepared.scene, prepared.table, prepared.geometry
     idx = prepared.exposures.rows
-    parts, radius = _parts(scene)
+    parts, _ids, radius = mesh_parts(scene)
     materials = [
         material_spec(name, brdf)
         for name, brdf in zip(
@@ -134,43 +161,31 @@ def blender_render(
         root = Path(work_dir) if work_dir is not None else Path(tmp)
         if len(idx):
             rng = geo.range_m[idx]
+            camera, per_frame, footprint_m2 = camera_setup(options, radius, rng)
             frames = {
-                "quaternions": _quaternions(prepared),
+                "quaternions": keyframe_quaternions(prepared),
                 "sun_dir": geo.sun_dir[idx],
                 "obs_dir": geo.obs_dir[idx],
                 "irradiance_w_m2": geo.irradiance_w_m2[idx],
+                **per_frame,
             }
-            n_px = options.resolution
-            if options.camera == "ortho":
-                ortho = 2.2 * radius
-                camera = {"mode": "ortho", "ortho_scale": ortho, "clip_end": 10.0 * radius + 10.0}
-                frames["camera_distance"] = np.full(len(idx), 2.0 * radius + 1.0)
-            else:
-                d_blender = rng / options.scale
-                fov = 2.0 * np.arctan(1.15 * radius / d_blender)
-                camera = {
-                    "mode": "perspective",
-                    "clip_start": 1e-3,
-                    "clip_end": 10.0 * float(d_blender.max()),
-                }
-                frames["camera_distance"] = d_blender
-                frames["fov_rad"] = fov
             extra = {"keep_images": options.keep_images is not None}
             if options.keep_images is not None:
                 extra["image_dir"] = str(Path(options.keep_images).resolve())
             job = write_job(root / "object", parts, materials, camera, settings, frames, extra)
             timeout = options.timeout_s or default_timeout_s(
-                len(idx), n_px, options.samples, keyframes
+                len(idx), options.resolution, options.samples, keyframes
             )
             result = run_worker(job, timeout, progress)
             pixel_sum[idx] = result["pixel_sum"]
             seconds[idx] = result["seconds"]
             e = geo.irradiance_w_m2[idx]
             if options.camera == "ortho":
-                intensity[idx] = result["pixel_sum"] * (ortho / n_px) ** 2 / e
+                intensity[idx] = result["pixel_sum"] * footprint_m2 / e
             else:
                 calibration = seed_calibration(options, root / "reference")
-                omega = (2.0 * np.tan(fov / 2.0) / n_px) ** 2
+                fov = per_frame["fov_rad"]
+                omega = (2.0 * np.tan(fov / 2.0) / options.resolution) ** 2
                 instrumental = -2.5 * np.log10(result["pixel_sum"] * omega)
                 mag = calibration.constant + instrumental + 5.0 * math.log10(options.scale)
                 flux = photometry.C_SUN_VIS_W_M2 * 10 ** (-0.4 * (mag - photometry.M_SUN_V))

@@ -71,6 +71,42 @@ def _material(spec: dict) -> bpy.types.Material:
     return mat
 
 
+#: Face attribute holding each triangle's mesh index + 1 (visibility renders).
+TRIANGLE_ATTRIBUTE = "jaxlc_triangle"
+#: Name of the node that switches a visibility material between its two renders.
+MODE_NODE = "jaxlc_mode"
+
+
+def _visibility_material(name: str) -> bpy.types.Material:
+    """White Lambert (mode 0: is the point sunlit?) or an emission of the triangle's
+    index + 1 (mode 1: which triangle is seen?), switched by the MODE_NODE mix."""
+    mat = bpy.data.materials.new(name)
+    nt = mat.node_tree
+    nt.nodes.clear()
+    out = nt.nodes.new("ShaderNodeOutputMaterial")
+    diffuse = nt.nodes.new("ShaderNodeBsdfDiffuse")
+    diffuse.inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)
+    diffuse.inputs["Roughness"].default_value = 0.0
+    attr = nt.nodes.new("ShaderNodeAttribute")
+    attr.attribute_type = "GEOMETRY"
+    attr.attribute_name = TRIANGLE_ATTRIBUTE
+    emission = nt.nodes.new("ShaderNodeEmission")
+    emission.inputs["Color"].default_value = (1.0, 1.0, 1.0, 1.0)
+    nt.links.new(attr.outputs["Fac"], emission.inputs["Strength"])
+    mix = nt.nodes.new("ShaderNodeMixShader")
+    mix.name = MODE_NODE
+    nt.links.new(diffuse.outputs[0], mix.inputs[1])
+    nt.links.new(emission.outputs[0], mix.inputs[2])
+    nt.links.new(mix.outputs[0], out.inputs["Surface"])
+    return mat
+
+
+def _set_mode(value: float) -> None:
+    for mat in bpy.data.materials:
+        if mat.node_tree is not None and MODE_NODE in mat.node_tree.nodes:
+            mat.node_tree.nodes[MODE_NODE].inputs[0].default_value = value
+
+
 def build_scene(job: dict, arrays) -> tuple:
     bpy.ops.wm.read_factory_settings(use_empty=True)
     scene = bpy.context.scene
@@ -106,10 +142,15 @@ def build_scene(job: dict, arrays) -> tuple:
         bg.inputs["Color"].default_value = (0.0, 0.0, 0.0, 1.0)
         bg.inputs["Strength"].default_value = 0.0
 
+    visibility = bool(job.get("visibility"))
+    if visibility:  # one ray through each pixel's centre: nothing averaged
+        cyc.pixel_filter_type = "BOX"
+        cyc.filter_width = 0.01
     obj = bpy.data.objects.new("object", None)
     obj.rotation_mode = "QUATERNION"
     scene.collection.objects.link(obj)
-    materials = {m["part"]: _material(m) for m in job["materials"]}
+    make = (lambda m: _visibility_material(m["part"])) if visibility else _material
+    materials = {m["part"]: make(m) for m in job["materials"]}
     for k, part in enumerate(job["parts"]):
         mesh = bpy.data.meshes.new(part)
         verts = arrays[f"vertices_{k}"].tolist()
@@ -117,6 +158,15 @@ def build_scene(job: dict, arrays) -> tuple:
         mesh.from_pydata(verts, [], faces)
         mesh.validate()
         mesh.update()
+        if visibility:
+            ids = arrays[f"triangle_ids_{k}"]
+            if len(mesh.polygons) != len(ids):
+                _fail(
+                    f"part {part!r}: Blender kept {len(mesh.polygons)} of {len(ids)} triangles; "
+                    "a visibility render needs every triangle (drop degenerate ones first)"
+                )
+            attr = mesh.attributes.new(name=TRIANGLE_ATTRIBUTE, type="FLOAT", domain="FACE")
+            attr.data.foreach_set("value", (np.asarray(ids) + 1.0).astype(np.float32))
         mesh.materials.append(materials[part])
         child = bpy.data.objects.new(part, mesh)
         scene.collection.objects.link(child)
@@ -159,6 +209,13 @@ def render_frames(job: dict, arrays, out_dir: str) -> tuple:
     sums = np.zeros(n)
     seconds = np.zeros(n)
     keep = job.get("keep_images", False)
+    visibility = None
+    if job.get("visibility"):
+        n_tri = int(job["triangles"])
+        visibility = {
+            "seen_pixels": np.zeros((n, n_tri), np.int32),
+            "lit_pixels": np.zeros((n, n_tri), np.int32),
+        }
     for i in range(n):
         t0 = time.perf_counter()
         obj.animation_data_clear()
@@ -186,20 +243,38 @@ def render_frames(job: dict, arrays, out_dir: str) -> tuple:
         else:
             camera.data.angle = float(arrays["fov_rad"][i])
 
-        path = os.path.join(out_dir, f"frame_{i:05d}.exr")
-        scene.render.filepath = path
-        bpy.ops.render.render(write_still=True)
-        image = bpy.data.images.load(path)
-        pixels = np.empty(len(image.pixels), dtype=np.float32)
-        image.pixels.foreach_get(pixels)
-        channels = image.channels
-        bpy.data.images.remove(image)
-        sums[i] = float(pixels.reshape(-1, channels)[:, 0].astype(np.float64).sum())
-        if not keep:
-            os.remove(path)
+        if visibility is not None:
+            _set_mode(1.0)
+            seen = np.rint(_render_image(scene, out_dir, i, "id", keep)).astype(np.int64) - 1
+            _set_mode(0.0)
+            lit = _render_image(scene, out_dir, i, "lit", keep) > 0.0
+            hit = seen >= 0
+            n_tri = visibility["seen_pixels"].shape[1]
+            visibility["seen_pixels"][i] = np.bincount(seen[hit], minlength=n_tri)[:n_tri]
+            visibility["lit_pixels"][i] = np.bincount(seen[hit & lit], minlength=n_tri)[:n_tri]
+            sums[i] = float(hit.sum())
+        else:
+            sums[i] = float(
+                _render_image(scene, out_dir, i, "frame", keep).astype(np.float64).sum()
+            )
         seconds[i] = time.perf_counter() - t0
         print(f"FRAME {i + 1} {n} {seconds[i]:.3f}", flush=True)
-    return sums, seconds
+    return sums, seconds, visibility or {}
+
+
+def _render_image(scene, out_dir: str, i: int, what: str, keep: bool) -> np.ndarray:
+    """Render the current frame and return its first channel (H·W,) as float32."""
+    path = os.path.join(out_dir, f"{what}_{i:05d}.exr")
+    scene.render.filepath = path
+    bpy.ops.render.render(write_still=True)
+    image = bpy.data.images.load(path)
+    pixels = np.empty(len(image.pixels), dtype=np.float32)
+    image.pixels.foreach_get(pixels)
+    channels = image.channels
+    bpy.data.images.remove(image)
+    if not keep:
+        os.remove(path)
+    return pixels.reshape(-1, channels)[:, 0]
 
 
 def _fcurves(action):
@@ -268,9 +343,9 @@ def main(argv: list[str]) -> int:
     check_job(job, arrays)
     images = job.get("image_dir") or os.path.join(job_dir, "images")
     os.makedirs(images, exist_ok=True)
-    sums, seconds = render_frames(job, arrays, images)
+    sums, seconds, counts = render_frames(job, arrays, images)
     tmp = os.path.join(job_dir, "result.tmp.npz")
-    np.savez(tmp, pixel_sum=sums, seconds=seconds)
+    np.savez(tmp, pixel_sum=sums, seconds=seconds, **counts)
     os.replace(tmp, os.path.join(job_dir, "result.npz"))
     with open(os.path.join(job_dir, "result.json"), "w", encoding="utf-8") as fh:
         json.dump({"frames": len(sums), "blender": bpy.app.version_string}, fh)

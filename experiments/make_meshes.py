@@ -1,4 +1,5 @@
-"""Build the standard scenes' shape models S1–S6 (BENCHMARKS.md) as OBJ files.
+"""Build the standard scenes' shape models S1–S6 (BENCHMARKS.md), and two further
+non-convex test shapes, as OBJ files.
 
 Run from anywhere: ``python experiments/make_meshes.py`` (``make meshes``).
 Dimensions are in metres; each OBJ object (``o`` line) is a named part so
@@ -133,6 +134,40 @@ def boxwing() -> trimesh.Scene:
     return _scene({"bus": box((1.2, 1.2, 1.8), (0, 0, 0)), "boom": booms, "panels": panels})
 
 
+def _box(extents, center):
+    return trimesh.creation.box(extents, trimesh.transformations.translation_matrix(center))
+
+
+def antenna_box() -> trimesh.Scene:
+    """A 1 m cube bus with a 0.3 × 0.3 × 0.06 m antenna block held 4 cm above its
+    +z face by a 2 cm mast: a shadow caster close to the surface it shadows."""
+    mast = _box((0.02, 0.02, 0.04), (0.1, 0.1, 0.52))
+    mast.update_faces(np.abs(mast.face_normals[:, 2]) < 0.5)  # its end caps would be hidden
+    mast.remove_unreferenced_vertices()
+    return _scene(
+        {
+            "bus": _box((1.0, 1.0, 1.0), (0.0, 0.0, 0.0)),
+            "mast": mast,
+            "antenna": _box((0.3, 0.3, 0.06), (0.1, 0.1, 0.57)),
+        }
+    )
+
+
+def boom_panel() -> trimesh.Scene:
+    """A 1 × 1 × 1.5 m bus with one 1.5 × 1.2 m panel (faces ±x) on a 1.5 m boom along
+    +y: a caster and a receiver a few metres apart."""
+    boom = _box((0.05, 1.5, 0.05), (0.0, 1.25, 0.0))
+    boom.update_faces(np.abs(boom.face_normals[:, 1]) < 0.5)
+    boom.remove_unreferenced_vertices()
+    return _scene(
+        {
+            "bus": _box((1.0, 1.0, 1.5), (0.0, 0.0, 0.0)),
+            "boom": boom,
+            "panel": _box((0.03, 1.5, 1.2), (0.0, 2.75, 0.0)),
+        }
+    )
+
+
 MESHES = {
     "plate.obj": (plate, "S1"),
     **{f"sphere_L{k}.obj": ((lambda k=k: sphere(k)), "S2") for k in range(1, 6)},
@@ -140,6 +175,8 @@ MESHES = {
     "falcon9_upper_stage.obj": (falcon9_upper_stage, "S4"),
     "cubesat_3u.obj": (cubesat_3u, "S5"),
     "boxwing.obj": (boxwing, "S6"),
+    "antenna_box.obj": (antenna_box, "test"),
+    "boom_panel.obj": (boom_panel, "test"),
 }
 
 

@@ -109,3 +109,22 @@ def rotation_matrix_from_quaternion(q):
 def magnitude_difference(a, b):
     """|Δm| between two positive fluxes or intensities."""
     return np.abs(2.5 * np.log10(np.asarray(a, np.float64) / np.asarray(b, np.float64)))
+
+
+def pass_geometry(n=6, **kw):
+    """A synthetic pass of ``n`` exposures a minute apart (phase 10° → 120°,
+    500 → 2,000 km), for the Blender tests; keywords override."""
+    import jaxlc
+
+    args = dict(
+        duration_s=60.0 * n,
+        step_s=60.0,
+        phase_start_deg=10,
+        phase_end_deg=120,
+        sun_dec_deg=35,
+        tilt_deg=50,
+        range_start_m=5e5,
+        range_end_m=2e6,
+    )
+    args.update(kw)
+    return jaxlc.synthetic_geometry(**args)

@@ -9,7 +9,13 @@ import math
 import jax
 import numpy as np
 import pytest
-from helpers import REPO, SCENES, lambert_sphere_intensity, rotation_matrix_from_quaternion
+from helpers import (
+    REPO,
+    SCENES,
+    lambert_sphere_intensity,
+    pass_geometry,
+    rotation_matrix_from_quaternion,
+)
 
 import jaxlc
 from calibrate.environment import find_blender_environment
@@ -28,19 +34,7 @@ SMALL = dict(resolution=64, samples=16)
 PLAIN = RenderOptions(shadows="off", blur="off")
 
 
-def _geometry(n=6, **kw):
-    args = dict(
-        duration_s=60.0 * n,
-        step_s=60.0,
-        phase_start_deg=10,
-        phase_end_deg=120,
-        sun_dec_deg=35,
-        tilt_deg=50,
-        range_start_m=5e5,
-        range_end_m=2e6,
-    )
-    args.update(kw)
-    return jaxlc.synthetic_geometry(**args)
+_geometry = pass_geometry
 
 
 # ---------------------------------------------------------------------------

@@ -462,6 +462,18 @@ CASES = [
     ),
     ("crosscheck scene", ["calibrate", "crosscheck", "--scenes", "S9", "--out", "cc"], {}, "'S9'"),
     (
+        "crosscheck material",
+        ["calibrate", "crosscheck", "--material", "cycles", "--out", "cc"],
+        {},
+        "'cycles'",
+    ),
+    (
+        "crosscheck as scene",
+        ["calibrate", "crosscheck", "--material", "as", "--scenes", "S9", "--out", "cc"],
+        {},
+        "'S9'",
+    ),
+    (
         "calibrate output ext",
         ["calibrate", "render", "sc.toml", "geo.csv", "-o", "c.txt"],
         OK,
