@@ -119,7 +119,7 @@ def cycles_visibility(
     n_facets = facets.n_facets
     lit_f = np.zeros((len(idx), n_facets))
     seen_f = np.zeros((len(idx), n_facets))
-    counts = seen_f
+    counts = np.zeros((len(idx), n_facets))
     if len(idx):
         parts, ids, radius = mesh_parts(scene)
         tri_facet = facets.triangle_facet
@@ -148,7 +148,8 @@ def cycles_visibility(
             job = write_job(Path(tmp), parts, materials, camera, settings, frames, extra)
             timeout = options.timeout_s or default_timeout_s(len(idx), options.resolution, 2)
             result = run_worker(job, timeout, progress)
-        mu = body_directions(prepared)[1] @ facets.normals.T  # (n, F)
+        sun_b, obs_b = body_directions(prepared)
+        mu, mu0 = obs_b @ facets.normals.T, sun_b @ facets.normals.T  # (n, F)
         for i in range(len(idx)):
             # each triangle's pixels go to its facet, or its twin's when seen from behind
             facing = mu[i, tri_facet] > 0
@@ -162,7 +163,6 @@ def cycles_visibility(
         seen_f = footprint_m2[:, None] * seen_f / projected
         if not all_facets:
             free = ~facets.can_shadow
-            mu0 = body_directions(prepared)[0] @ facets.normals.T
             seen_f[:, free] = (mu[:, free] > EDGE_ON_MU).astype(float)
             lit_f[:, free] = seen_f[:, free] * (mu0[:, free] > 0)
     return prepared, Visibility(rows=idx, lit_seen=lit_f, seen=seen_f, seen_pixels=counts)

@@ -13,7 +13,12 @@ from helpers import SCENES, ashikhmin_shirley_rho, lambert_sphere_intensity, pas
 import jaxlc
 from calibrate.environment import find_blender_environment
 from calibrate.job import BlenderOptions
-from calibrate.visibility import coincident_twins, cycles_visibility, exact_direct_render
+from calibrate.visibility import (
+    body_directions,
+    coincident_twins,
+    cycles_visibility,
+    exact_direct_render,
+)
 from jaxlc import AshikhminShirley, RenderOptions
 from jaxlc.body.shadow_exact import ExactShadows
 from jaxlc.rendering import photometry
@@ -97,9 +102,7 @@ def test_shadowed_facets_agree_with_the_exact_twin():
     prepared, vis = cycles_visibility(scene, geo, BlenderOptions(resolution=512), all_facets=True)
     mesh, facets = prepared.scene.body
     exact = ExactShadows(mesh, facets)
-    r = jaxlc.rotation_matrices(prepared)
-    sun_b = np.einsum("mji,mj->mi", r, np.asarray(prepared.inputs.sun_dir, np.float64))
-    obs_b = np.einsum("mji,mj->mi", r, np.asarray(prepared.inputs.obs_dir, np.float64))
+    sun_b, obs_b = body_directions(prepared)
     got, want = [], []
     for i in range(len(vis.rows)):
         truth = exact.fractions(sun_b[i], obs_b[i])

@@ -69,11 +69,12 @@ def observer_in_body(scene: jaxlc.Scene, geometry: pd.DataFrame) -> np.ndarray:
     """(N, 3) unit object → observer direction in the body frame at each row's
     mid-exposure (NaN for rows that are not rendered), from the renderer's own
     preparation."""
-    p = jaxlc.prepare(scene, geometry, precision="float64", subsamples=1)
-    r = jaxlc.rotation_matrices(p)  # (M, 3, 3) body → inertial
-    v = np.einsum("mji,mj->mi", r, np.asarray(p.inputs.obs_dir, dtype=np.float64))
+    from calibrate.visibility import body_directions
+
+    plain = jaxlc.RenderOptions(shadows="off", blur="off")
+    p = jaxlc.prepare(scene, geometry, plain, precision="float64", subsamples=1)
     out = np.full((len(geometry), 3), np.nan)
-    out[np.asarray(p.exposures.rows)] = v
+    out[np.asarray(p.exposures.rows)] = body_directions(p)[1]
     return out
 
 

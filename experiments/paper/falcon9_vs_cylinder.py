@@ -159,9 +159,14 @@ def main(argv=None) -> pd.DataFrame:
                     )
                 )
 
-    for (pass_name, axis, body), (lc, end_z) in curves.items():
+    measured = {}  # (pass, axis, body) → (dip indices, dip asymmetry), for the table and plot
+    for key, (lc, end_z) in curves.items():
         mag = lc["mag"].to_numpy()
-        a = dip_asymmetry(mag, dips(lc["t_s"].to_numpy(), mag, SEED_PERIOD_S / 2), end_z)
+        idx = dips(lc["t_s"].to_numpy(), mag, SEED_PERIOD_S / 2)
+        measured[key] = idx, dip_asymmetry(mag, idx, end_z)
+    for (pass_name, axis, body), (lc, _end_z) in curves.items():
+        mag = lc["mag"].to_numpy()
+        a = measured[pass_name, axis, body][1]
         slope, _ = peak_trend(
             at_1000_km(lc),
             lc["phase_angle_deg"].to_numpy(),
@@ -225,11 +230,11 @@ def main(argv=None) -> pd.DataFrame:
     for k, r in periods.items():
         print(f"{k}: {r.decision}")
     print(f"renders {render_s:.1f} s → {out}")
-    plot(curves, periods, out.with_suffix(".png"))
+    plot(curves, measured, periods, out.with_suffix(".png"))
     return table
 
 
-def plot(curves, periods, path: Path) -> None:
+def plot(curves, measured, periods, path: Path) -> None:
     plt = pyplot()
     panels = sorted({(p, a) for p, a, _b in curves}, key=lambda k: (list(PASSES).index(k[0]), k[1]))
     fig = plt.figure(figsize=(11, 3.0 * (len(panels) + len(periods))))
@@ -241,7 +246,7 @@ def plot(curves, periods, path: Path) -> None:
             lc, end_z = curves[pass_name, axis, body]
             ts, mag = lc["t_s"].to_numpy(), lc["mag"].to_numpy()
             ax.plot(ts, mag, lw=0.8, color=colours[body], label=f"{body} ({SCENES[body]})")
-            idx = dips(ts, mag, SEED_PERIOD_S / 2)
+            idx = measured[pass_name, axis, body][0]
             marks = (
                 (end_z[idx] < 0, "v", "tab:red", "nozzle (−z)"),
                 (end_z[idx] >= 0, "^", "tab:green", "nose (+z)"),
@@ -251,9 +256,7 @@ def plot(curves, periods, path: Path) -> None:
                 ax.plot(ts[idx[sel]], mag[idx[sel]], mark, ms=4, color=c, label=label)
         note = []
         for body in SCENES:
-            lc, end_z = curves[pass_name, axis, body]
-            mag = lc["mag"].to_numpy()
-            a = dip_asymmetry(mag, dips(lc["t_s"].to_numpy(), mag, SEED_PERIOD_S / 2), end_z)
+            a = measured[pass_name, axis, body][1]
             note.append(f"{body}: {a['median']:+.2f} mag ({a['pairs']} dips)")
         ax.text(
             0.99,

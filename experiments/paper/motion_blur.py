@@ -96,36 +96,33 @@ def main(argv=None) -> pd.DataFrame:
     mag = {k: v["mag"].to_numpy() for k, v in curves.items()}
     marks = features(mag["jax", False])
 
-    rows = []
-    for kind, idx in marks.items():
-        for i in idx:
-            rows.append(
-                dict(
-                    feature=kind,
-                    t_s=float(geo["t_s"].iloc[i]),
-                    jax_sharp_mag=mag["jax", False][i],
-                    jax_blur_change_mag=mag["jax", True][i] - mag["jax", False][i],
-                    cycles_blur_change_mag=mag["cycles", True][i] - mag["cycles", False][i],
-                    cycles_minus_jax_sharp_mag=mag["cycles", False][i] - mag["jax", False][i],
-                    cycles_minus_jax_blur_mag=mag["cycles", True][i] - mag["jax", True][i],
-                )
-            )
+    # each column: curve a − curve b, per feature and as the max |·| over all exposures
+    diffs = {
+        name: mag[a] - mag[b]
+        for name, (a, b) in {
+            "jax_blur_change_mag": (("jax", True), ("jax", False)),
+            "cycles_blur_change_mag": (("cycles", True), ("cycles", False)),
+            "cycles_minus_jax_sharp_mag": (("cycles", False), ("jax", False)),
+            "cycles_minus_jax_blur_mag": (("cycles", True), ("jax", True)),
+        }.items()
+    }
+    rows = [
+        dict(
+            feature=kind,
+            t_s=float(geo["t_s"].iloc[i]),
+            jax_sharp_mag=mag["jax", False][i],
+            **{name: d[i] for name, d in diffs.items()},
+        )
+        for kind, idx in marks.items()
+        for i in idx
+    ]
     every = np.isfinite(mag["jax", False])
     rows.append(
         dict(
             feature="all exposures (max |.|)",
             t_s=np.nan,
             jax_sharp_mag=np.nan,
-            jax_blur_change_mag=np.nanmax(np.abs(mag["jax", True] - mag["jax", False])[every]),
-            cycles_blur_change_mag=np.nanmax(
-                np.abs(mag["cycles", True] - mag["cycles", False])[every]
-            ),
-            cycles_minus_jax_sharp_mag=np.nanmax(
-                np.abs(mag["cycles", False] - mag["jax", False])[every]
-            ),
-            cycles_minus_jax_blur_mag=np.nanmax(
-                np.abs(mag["cycles", True] - mag["jax", True])[every]
-            ),
+            **{name: np.nanmax(np.abs(d)[every]) for name, d in diffs.items()},
         )
     )
     table = pd.DataFrame(rows)
