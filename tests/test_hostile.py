@@ -479,6 +479,35 @@ CASES = [
         OK,
         ".txt",
     ),
+    # telescope frames (jaxlc frames / jaxlc extract)
+    (
+        "extract not fits",
+        ["extract", "fr", "-o", "lc.csv"],
+        {"fr/a.fits": "text"},
+        "not a readable FITS",
+    ),
+    ("extract no fits", ["extract", "fr", "-o", "lc.csv"], {"fr/a.txt": "x"}, "holds no FITS"),
+    ("extract no folder", ["extract", "nope", "-o", "lc.csv"], {}, "no such folder"),
+    (
+        "extract catalog columns",
+        ["extract", "fr", "-o", "lc.csv", "--catalog", "cat.csv"],
+        {"fr/a.fits": "text", "cat.csv": "ra,dec,vmag\n1,2,3\n"},
+        "needs ra_deg, dec_deg, mag",
+    ),
+    ("extract output ext", ["extract", "fr", "-o", "lc.txt"], {"fr/a.fits": "x"}, ".txt"),
+    (
+        "frames catalog missing",
+        ["frames", "sc.toml", "geo.csv", "-o", "fr", "--catalog", "nope.csv"],
+        OK,
+        "no such file",
+    ),
+    ("frames gain", ["frames", "sc.toml", "geo.csv", "-o", "fr", "--gain", "-1"], OK, "gain"),
+    (
+        "frames readout",
+        ["frames", "sc.toml", "geo.csv", "-o", "fr", "--readout-s", "1e6"],
+        OK,
+        "--readout-s",
+    ),
 ]
 # the placeholder above: an exposure of one day
 CASES = [

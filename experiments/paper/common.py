@@ -94,12 +94,18 @@ def write_result(table: pd.DataFrame, path: Path, **attrs) -> Path:
 def save_png(fig, path: Path, dpi: int = 70) -> Path:
     """Save a figure atomically as a PNG of 256 colours (a third of the size; these
     figures are committed), and close it."""
-    from PIL import Image
-
-    from jaxlc.io.files import atomic_output
     from jaxlc.plot import save_figure
 
     save_figure(fig, path, dpi=dpi)
+    return quantize_png(path)
+
+
+def quantize_png(path: Path) -> Path:
+    """Rewrite a PNG atomically with 256 colours (a third of the size)."""
+    from PIL import Image
+
+    from jaxlc.io.files import atomic_output
+
     with Image.open(path) as im:
         small = im.convert("RGB").quantize(256)
     with atomic_output(Path(path)) as tmp:

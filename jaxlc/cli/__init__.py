@@ -4,7 +4,7 @@
 importing this package registers every command group on it.
 """
 
-from jaxlc.cli import calibrate, dataset, geometry, inference, render
+from jaxlc.cli import calibrate, dataset, geometry, imaging, inference, render
 from jaxlc.cli.app import app, main
 
-__all__ = ["app", "calibrate", "dataset", "geometry", "inference", "main", "render"]
+__all__ = ["app", "calibrate", "dataset", "geometry", "imaging", "inference", "main", "render"]
