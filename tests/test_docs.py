@@ -40,6 +40,8 @@ def test_readme_cli_example_commands_exist():
             "period",
             "fit",
             "calibrate",
+            "frames",
+            "extract",
         ), cmd
     assert "make demo" in text and "make test" in text
 
