@@ -38,7 +38,8 @@ from jaxlc.imaging.starmatch import (
     pointing_streak,
 )
 from jaxlc.imaging.track import Tracker
-from jaxlc.rendering.photometry import C_SUN_VIS_W_M2, M_SUN_V
+from jaxlc.io.utc import format_utc
+from jaxlc.rendering.photometry import flux_from_magnitude
 
 
 @dataclasses.dataclass(frozen=True)
@@ -83,9 +84,9 @@ def measure_frame(
     radius = settings.aperture_fwhm * fwhm
     sigma = fwhm / FWHM_PER_SIGMA
     mask = segm > 0
-    result = {"detections": det, "segments": segm, "fwhm_px": fwhm, "n_catalog": 0}
+    result = {"detections": det, "segments": segm, "n_catalog": 0}
     star_of = np.full(len(det), -1)
-    near, star_xy = stars.iloc[:0] if stars is not None else None, np.zeros((0, 2))
+    near, star_xy = None, np.zeros((0, 2))  # no catalogue: no star is ever matched
     if stars is not None:
         near, star_xy = catalogue_in_frame(frame, stars, margin_px=0.5 * frame.data.shape[0])
         star_of = match_stars(det, star_xy, settings.match_px)
@@ -218,7 +219,7 @@ def extract_lightcurves(
     rows, log, misses = [], [], {}
     for done, k in enumerate(order):
         frame = read_frame(paths[k], keys)
-        t_s = (frame.start - t0).total_seconds()
+        t_s = times[done]
         expected = pointing_streak(frame, times, centres, done)
         res = measure_frame(frame, stars, settings, expected)
         predicted = tracker.predictions(t_s)
@@ -285,12 +286,12 @@ def curves_from_tracks(rows, log: pd.DataFrame, misses: dict, min_frames: int):
     for tid in keep:
         mine = found[found["track"] == tid].drop_duplicates("frame").set_index("frame")
         lc = pd.DataFrame({
-            "utc": [s.strftime("%Y-%m-%dT%H:%M:%S.%fZ") for s in log["start"]],
+            "utc": format_utc(log["start"]),
             "t_s": log["t_s"].to_numpy(float),
         })  # fmt: skip
         for col in ("mag", "mag_err", "x_px", "y_px", "instrument_mag", "snr"):
             lc[col] = mine[col].reindex(range(len(log))).to_numpy(float)
-        lc["flux_w_m2"] = C_SUN_VIS_W_M2 * 10.0 ** (-0.4 * (lc["mag"] - M_SUN_V))
+        lc["flux_w_m2"] = flux_from_magnitude(lc["mag"].to_numpy())
         lc["phase_angle_deg"] = np.nan
         lc["range_m"] = np.nan
         lc["exposure_s"] = log["exposure_s"].to_numpy(float)

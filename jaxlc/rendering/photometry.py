@@ -60,3 +60,9 @@ def magnitude(flux):
     f = np.asarray(flux, dtype=np.float64)
     with np.errstate(divide="ignore"):
         return M_SUN_V - 2.5 * np.log10(f / C_SUN_VIS_W_M2)
+
+
+def flux_from_magnitude(mag):
+    """Inverse of :func:`magnitude`: ``F = C_sun,vis · 10^(−0.4 (m − M_sun))``; NaN stays NaN."""
+    m = np.asarray(mag, dtype=np.float64)
+    return C_SUN_VIS_W_M2 * 10.0 ** (-0.4 * (m - M_SUN_V))
