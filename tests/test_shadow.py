@@ -253,8 +253,10 @@ def _sub_points_loop(mesh, facets, facet_ids, counts):
         share = k * area / area.sum()
         count = np.floor(share).astype(int)
         count[np.argsort(-(share - count), kind="stable")[: k - count.sum()]] += 1
+        first = 1  # the Halton index runs on over the facet's triangles
         for tt, c in zip(t, count, strict=True):
-            i = np.arange(1, c + 1)
+            i = np.arange(first, first + c)
+            first += c
             r1, r2 = _halton(i, 2), _halton(i, 3)
             fold = r1 + r2 > 1
             r1, r2 = np.where(fold, 1 - r1, r1), np.where(fold, 1 - r2, r2)
@@ -438,3 +440,26 @@ def test_explain_cli(tmp_path):
         "15 of 20 rendered (5 invisible, skipped)",
     ):
         assert word in r.stderr, word
+
+
+def test_grazing_sun_on_the_base_of_s4_matches_the_exact_twin():
+    """S4's base annulus (normal −z, so grid nodes lie in its plane) seen along its
+    normal, lit from 0.5° to 20° above it: the lit-and-seen fraction stays within
+    0.025 of polygon clipping. Zero bits at the in-plane nodes gave 0.06 for 0.21 at
+    grazing, and Halton points restarted in every sliver of the fan 0.18."""
+    from jaxlc.body.facet_model import tangent_frame
+
+    scene = jaxlc.load_scene(SCENES / "s4_falcon9.toml")
+    mesh, facets = scene.body
+    data = shadow_data(mesh, facets, ShadowSettings())
+    f = int(np.argmax(np.where(facets.normals[:, 2] < -0.99, facets.areas_m2, 0.0)))
+    k = int(np.flatnonzero(data.facet_ids == f)[0])
+    n = facets.normals[f]
+    u, w = (x[f] for x in tangent_frame(facets.normals))
+    exact = ExactShadows(mesh, facets)
+    for el in np.radians([0.5, 1.0, 2.0, 4.0, 10.0, 20.0]):
+        d = np.cos(el) * (np.cos(0.7) * u + np.sin(0.7) * w) + np.sin(el) * n
+        got = lit_seen_fraction(
+            shadow_table(data), jnp.asarray(d[None], jnp.float32), jnp.asarray(n[None], jnp.float32)
+        )
+        assert abs(float(got[0, k]) - exact.fractions(d, n)[f]) <= 0.025, np.degrees(el)

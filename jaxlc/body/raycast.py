@@ -27,6 +27,10 @@ from jaxlc.body.octahedral import nearest_node, node_spacing_rad, octahedral_dir
 
 #: Threads casting directions at once.
 THREADS = max(1, min(4, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else 2))
+#: A grid node in a facet's plane is traced along the node's direction raised off
+#: the plane by this angle (rad; 0.75°, 1/20 of the 32-grid's node spacing): the
+#: limit from above.
+IN_PLANE_LIFT_RAD = 0.013
 #: Most (direction, facet) pairs of one block of the horizon fix-up.
 MIRROR_BLOCK = 1 << 22
 
@@ -39,7 +43,9 @@ def sub_points(
     Each triangle of a facet gets its share of the facet's points by area
     (largest remainder; ties to the earlier triangle); inside a triangle the
     points follow a 2-D Halton sequence folded into the triangle, so the
-    placement is stratified and reproducible. All facets at once: O(M log M).
+    placement is stratified and reproducible; the sequence runs on from one
+    triangle of a facet to the next (indices 1 … k over the facet). All facets
+    at once: O(M log M).
     """
     counts = np.asarray(counts, dtype=np.int64)
     rank = np.full(facets.n_facets + 1, -1, dtype=np.int64)
@@ -59,7 +65,10 @@ def sub_points(
     count[by_rest[place < missing[owner[by_rest]]]] += 1
 
     tri_of = np.repeat(np.arange(len(owner)), count)
-    k = np.arange(len(tri_of)) - np.repeat(np.cumsum(count) - count, count) + 1
+    # Halton indices run on across a facet's triangles (1 … k per facet): restarting
+    # them in every triangle put the same few points in each sliver of a fan and
+    # biased the fractions of narrow lit or seen regions (a 10 % error on S4's base).
+    k = np.arange(len(tri_of)) - np.repeat(np.cumsum(counts) - counts, counts) + 1
     r1, r2 = _halton(k, 2), _halton(k, 3)
     fold = r1 + r2 > 1  # fold the unit square onto the triangle
     r1, r2 = np.where(fold, 1 - r1, r1), np.where(fold, 1 - r2, r2)
@@ -139,10 +148,22 @@ def trace_visibility(
     pts_t = np.ascontiguousarray(pts.T, dtype=np.float32)
     del pts
 
+    lift = np.tan(IN_PLANE_LIFT_RAD)
+
     def row(d):
-        facing = (normals @ d > 1e-9)[owner]  # sub-points above their facet's horizon
+        cos = normals @ d
+        facing = (cos > 1e-9)[owner]  # sub-points above their facet's horizon
         seen = np.zeros(32 * n_words, dtype=bool)
         seen[bit[facing]] = ~blockers.occluded(pts_t, d, 1e-6 * diag, facing)[facing]
+        # A node in a facet's plane takes the limit from above: the ray lifted
+        # slightly off the plane (else its zeros darken every grazing look-up).
+        in_plane = np.flatnonzero(np.abs(cos) <= 1e-9)
+        normal_ids = np.unique(np.round(normals[in_plane], 9), axis=0, return_inverse=True)[1]
+        for g in range(int(normal_ids.max(initial=-1)) + 1):
+            want = np.isin(owner, in_plane[normal_ids.ravel() == g])
+            up = d + lift * normals[in_plane[normal_ids.ravel() == g][0]]
+            up /= np.linalg.norm(up)
+            seen[bit[want]] = ~blockers.occluded(pts_t, up, 1e-6 * diag, want)[want]
         return pack_bits(seen.reshape(-1, 32)).ravel()
 
     packed = np.zeros((len(dirs), n_words), np.uint32)
@@ -167,7 +188,7 @@ def _mirror_below_horizon(packed, normals, start, counts, grid) -> None:
     step = max(1, MIRROR_BLOCK // len(dirs))
     for s in range(0, len(normals), step):
         cos = dirs @ normals[s : s + step].T  # (D, facets of the block)
-        j, f = np.nonzero((cos <= 1e-9) & (cos > band))
+        j, f = np.nonzero((cos < -1e-9) & (cos > band))
         f = f + s
         d = dirs[j]
         mirror = nearest_node(d - 2.0 * np.sum(d * normals[f], 1)[:, None] * normals[f], grid)

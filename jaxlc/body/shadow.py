@@ -50,7 +50,7 @@ from jaxlc.io.cache import cache_dir
 from jaxlc.io.files import atomic_output
 
 #: Bump when the precomputation changes: cached tables of older versions are ignored.
-ALGORITHM_VERSION = 4
+ALGORITHM_VERSION = 5
 #: Most sub-points of one table (see the module docstring).
 SUBPOINT_BUDGET = 1 << 22
 #: Most directions × (sub-points + 2 × triangles) of one trace (its cost, measured:
