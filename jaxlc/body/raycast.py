@@ -158,10 +158,11 @@ def trace_visibility(
         # A node in a facet's plane takes the limit from above: the ray lifted
         # slightly off the plane (else its zeros darken every grazing look-up).
         in_plane = np.flatnonzero(np.abs(cos) <= 1e-9)
-        normal_ids = np.unique(np.round(normals[in_plane], 9), axis=0, return_inverse=True)[1]
-        for g in range(int(normal_ids.max(initial=-1)) + 1):
-            want = np.isin(owner, in_plane[normal_ids.ravel() == g])
-            up = d + lift * normals[in_plane[normal_ids.ravel() == g][0]]
+        planes = np.unique(np.round(normals[in_plane], 9), axis=0, return_inverse=True)[1]
+        for g in np.unique(planes):
+            members = in_plane[planes.ravel() == g]
+            want = np.isin(owner, members)
+            up = d + lift * normals[members[0]]
             up /= np.linalg.norm(up)
             seen[bit[want]] = ~blockers.occluded(pts_t, up, 1e-6 * diag, want)[want]
         return pack_bits(seen.reshape(-1, 32)).ravel()
