@@ -112,7 +112,8 @@ def case(scene, geo, k: int, settings: FitSettings, noise_mag: float = 0.05) -> 
     pole_rank = float(np.sum(w[d_samples < d_truth[nearest]]))
     p = s["period_s"].to_numpy()
     period_rank = float(np.sum(w[p < period]))
-    near = r["modes"][int(nearest)]
+    # r["modes"] is listed by weight: the nearest mode is the row of that mode id
+    near = next(m for m in r["modes"] if m["mode"] == int(nearest))
     iv = near["mcmc"]["intervals"]
     return {
         "case": k,
@@ -143,6 +144,8 @@ def case(scene, geo, k: int, settings: FitSettings, noise_mag: float = 0.05) -> 
         "chain_length_tau": r["diagnostics"]["chain_length_tau"],
         "acceptance": r["diagnostics"]["acceptance"],
         "seconds": seconds,
+        "map_s": r["timings_s"]["map_s"],
+        "mcmc_s": r["timings_s"]["mcmc_s"],
     }
 
 

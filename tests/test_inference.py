@@ -131,6 +131,32 @@ def test_fit_data_needs_matching_geometry(cubesat_case):
         fit_data(lc, geo.iloc[: len(geo) // 2])
 
 
+def test_search_subset_sees_every_phase_of_a_period_near_its_stride(cubesat_case):
+    """The search's 64 of 1,200 one-second samples must see a period of two grid strides
+    (2 × 19.03 s) at all phases: the regular grid (every 19.03rd sample) sees it at two
+    phases only, so the search cannot tell it from its multiples (SBC case 21: a
+    9.52 s spin, 2P = 19.05 s, fitted 2P)."""
+    from jaxlc.inference.data import fit_data
+
+    scene, _, _ = cubesat_case
+    geo = jaxlc.synthetic_geometry(duration_s=1200, step_s=1.0)
+    data = fit_data(jaxlc.render(scene, geo), geo)
+    sub = data.stratified_subset(64, np.random.default_rng(0))
+    t = np.sort(sub.t_s)
+    assert sub.n == 64 and np.all(np.diff(t) > 0)
+    assert t[0] - data.t_s.min() < 2 * data.span_s / 64
+    assert data.t_s.max() - t[-1] < 2 * data.span_s / 64
+    period = 2 * (data.n - 1) / 63
+    for times in (t, data.t_s[np.linspace(0, data.n - 1, 64).astype(int)]):
+        phase = np.sort(np.mod(times / period, 1.0))
+        gaps = np.diff(np.concatenate([phase, phase[:1] + 1]))
+        if times is t:
+            assert gaps.max() < 0.15  # 64 random phases: expected largest gap ~0.07
+        else:
+            assert gaps.max() > 0.4  # the regular grid: the old search's blind spot
+    assert data.stratified_subset(5000, np.random.default_rng(0)) is data
+
+
 def test_fit_recovers_spin_state(cubesat_case, tmp_path):
     """A small, fixed-seed version of experiments/sbc_fit.py."""
     from jaxlc.inference.fit import FitSettings, fit_spin

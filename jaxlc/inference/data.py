@@ -92,6 +92,19 @@ class FitData:
             self, rows=self.rows[idx], mag=self.mag[idx], mag_err=self.mag_err[idx]
         )
 
+    def stratified_subset(self, n: int, rng: np.random.Generator) -> FitData:
+        """At most ``n`` samples, one drawn at random from each of ``n`` equal runs of the
+        fitted samples (in time order): spread over the whole curve like every k-th
+        sample, but not stroboscopic. Every k-th sample of a regular series sees a
+        period near k steps (or a divisor of it) at one phase only, so a search on such
+        a grid cannot tell that period from its multiples: SBC case 21 (9.5 s spin,
+        every 18.75th second) fitted 2P with χ² 1,930 where the truth has 1,205."""
+        if n >= self.n:
+            return self
+        edges = np.linspace(0, self.n, n + 1)
+        idx = np.floor(edges[:-1] + rng.uniform(size=n) * np.diff(edges)).astype(int)
+        return self.subset(np.unique(np.clip(idx, 0, self.n - 1)))
+
 
 def fit_data(
     lightcurve: pd.DataFrame,

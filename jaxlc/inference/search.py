@@ -311,8 +311,9 @@ def multistart(
 
     The search model is the coarse one (128 normal bins, no shadows, at most
     :data:`SEARCH_MAX_SUBSAMPLES` sub-exposures, prepared for the shortest
-    seed period) on ``search_samples`` evenly spread samples: it only has to
-    put starts into the right basins. A second solve of the same size starts
+    seed period) on ``search_samples`` samples spread over the curve, one at random
+    per equal run (:meth:`FitData.stratified_subset`: a regular grid aliases): it
+    only has to put starts into the right basins. A second solve of the same size starts
     at the reversed poles of the four best optima and at those poles themselves with
     phases spread over the turn (:func:`reversed_starts`);
     the ``max_modes`` best distinct optima of both are then refined on the
@@ -325,7 +326,7 @@ def multistart(
     """
     rng = rng or np.random.default_rng(0)
     log = log or (lambda msg: None)
-    sub = data.subset(np.unique(np.linspace(0, data.n - 1, search_samples).astype(int)))
+    sub = data.stratified_subset(search_samples, rng)
     coarse = spin_model(
         scene, sub, min(seeds_period_s), exact=False, max_subsamples=SEARCH_MAX_SUBSAMPLES
     )

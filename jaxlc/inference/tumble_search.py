@@ -336,7 +336,7 @@ def tumble_multistart(
     log = log or (lambda msg: None)
     starts = tumble_starts(hypotheses, n_starts, rng, rate_ref_rad_s)
     fastest = starts[np.argmax(np.linalg.norm(starts[:, 2:5], axis=1))]
-    sub = data.subset(np.unique(np.linspace(0, data.n - 1, search_samples).astype(int)))
+    sub = data.stratified_subset(search_samples, rng)
     coarse = tumble_model(
         scene, sub, fastest, rate_ref_rad_s, exact=False, max_subsamples=SEARCH_MAX_SUBSAMPLES
     )
