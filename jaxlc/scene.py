@@ -27,7 +27,8 @@ file, the key and the allowed range (ARCHITECTURE.md, "Scene file")::
                                               # (jaxlc.rendering.options)
 
 The standard scenes S1–S6 ship with the package (:data:`SHIPPED_SCENES`,
-:func:`scene_path`): ``jaxlc render s4_falcon9 geometry.csv`` works anywhere.
+:func:`scene_path`): ``jaxlc render s4_falcon9 geometry.csv`` works anywhere; so do
+the test shapes ``s7_antenna_box`` and ``s8_boom_panel``, by name.
 """
 
 from __future__ import annotations

@@ -53,10 +53,22 @@ def _sha(path):
 # Accuracy against the exact twin (committed reference, 1,000 geometries each)
 
 
-@pytest.mark.parametrize("name", ["s4_falcon9", "s6_boxwing"])
-def test_approximation_meets_accuracy_targets(name):
-    """Median |Δm| ≤ 0.01 and 95th percentile ≤ 0.05 over 1,000 random geometries
-    against exact polygon clipping (issue 4); the unshadowed model is far off."""
+@pytest.mark.parametrize(
+    ("name", "p99_max", "plain_p95_min"),
+    [
+        ("s4_falcon9", 0.1, 0.3),
+        ("s6_boxwing", 0.1, 0.3),
+        # the two non-convex shapes of issue 16: an antenna block 4 cm above a face,
+        # a panel on a 1.5 m boom (2,000 geometries each)
+        ("s7_antenna_box", 0.05, 0.1),
+        ("s8_boom_panel", 0.05, 0.05),
+    ],
+)
+def test_approximation_meets_accuracy_targets(name, p99_max, plain_p95_min):
+    """Median |Δm| ≤ 0.01 and 95th percentile ≤ 0.05 over ≥ 1,000 random geometries
+    against exact polygon clipping (issue 4); the 99th percentile at phase ≤ 160° within
+    issue 16's 0.05 on S7 and S8 (S4 and S6 are at 0.06: a guard of 0.1 holds their
+    tail there); the unshadowed model is far off."""
     ref = jaxlc.read_table(DATA / f"shadow_reference_{name.split('_')[0]}.csv")
     scene = jaxlc.load_scene(SCENES / f"{name}.toml")
     assert ref.attrs["scene_sha256"] == _sha(SCENES / f"{name}.toml"), REGENERATE
@@ -74,8 +86,11 @@ def test_approximation_meets_accuracy_targets(name):
     dm = np.abs(2.5 * np.log10(approx[lit] / exact[lit]))
     assert np.median(dm) <= 0.01, np.median(dm)
     assert np.percentile(dm, 95) <= 0.05, np.percentile(dm, 95)
+    phase = np.degrees(np.arccos(np.clip(np.sum(s * v, axis=1), -1, 1)))
+    tail = np.abs(2.5 * np.log10(approx[lit & (phase <= 160)] / exact[lit & (phase <= 160)]))
+    assert np.percentile(tail, 99) <= p99_max, np.percentile(tail, 99)
     plain = np.abs(2.5 * np.log10(ref["i_unshadowed_m2_sr"].to_numpy()[lit] / exact[lit]))
-    assert np.percentile(plain, 95) > 0.3  # shadows matter in these scenes
+    assert np.percentile(plain, 95) > plain_p95_min  # shadows matter in these scenes
 
 
 def test_reference_data_is_reproduced_by_the_twin():
