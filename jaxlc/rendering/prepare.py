@@ -354,20 +354,24 @@ def adapt(prepared: list[Prepared], evaluate, pad_rows: bool = False) -> list[Pr
     todo = [i for i, p in enumerate(prepared) if p.adaptive and p.exposures.n_rows]
     if not todo:
         return list(prepared)
-    curves = [
-        Curve(
-            prepared[i].geometry,
-            prepared[i].exposures.rows,
-            prepared[i].t0_s,
-            first_level_for(prepared[i].plan.blur.subsamples),
-        )
-        for i in todo
-    ]
     options = [prepared[i].options or RenderOptions() for i in todo]
     tol = {o.blur_tolerance_mag for o in options}
     level = {max_level_for(o.max_subsamples) for o in options}
     if len(tol) > 1 or len(level) > 1:
         raise JaxlcError("adapt: curves refined together must share blur options")
+    last = next(iter(level))
+    curves = [
+        Curve(
+            prepared[i].geometry,
+            prepared[i].exposures.rows,
+            prepared[i].t0_s,
+            min(
+                last,
+                first_level_for(prepared[i].plan.blur.sweep_rad, prepared[i].plan.blur.scale_rad),
+            ),
+        )
+        for i in todo
+    ]
     found = refine(
         curves,
         lambda probes: evaluate([(prepared[i], p) for i, p in zip(todo, probes, strict=True)]),
