@@ -98,7 +98,7 @@ class FitData:
         sample, but not stroboscopic. Every k-th sample of a regular series sees a
         period near k steps (or a divisor of it) at one phase only, so a search on such
         a grid cannot tell that period from its multiples: SBC case 21 (9.5 s spin,
-        every 18.75th second) fitted 2P with χ² 1,930 where the truth has 1,205."""
+        every 19th second) fitted 2P with χ² 1,930 where the truth has 1,205."""
         if n >= self.n:
             return self
         edges = np.linspace(0, self.n, n + 1)

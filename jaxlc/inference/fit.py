@@ -41,10 +41,11 @@ from jaxlc.scene import Scene
 __all__ = ["FitSettings", "fit_spin", "write_outputs"]
 
 
-#: The fit's model error budget per sample, as a fraction of the data's noise. The
-#: adaptive quadrature's error can exceed its tolerance several times where the
-#: first instants straddle a narrow glint: at σ/10 (5 mmag) the S5 model was 29 mmag
-#: off the render in places, χ² 2.6 over a curve, and the period 2.5 σ off (SBC case 3);
+#: The fit's model error budget per sample, as a fraction of the data's noise. Measured
+#: before the adaptive quadrature's first level resolved the sharpest feature (when its
+#: error could exceed the tolerance several times at a glint): at σ/10 (5 mmag) the S5
+#: model was 29 mmag off the render in places, χ² 2.6 over a curve, and the period
+#: 2.5 σ off (SBC case 3);
 #: at σ/30 (1.7 mmag) they cost χ² ≤ 0.4 on the same curves (a bias ≲ 0.6 σ).
 BLUR_NOISE_FRACTION = 1 / 30
 #: … and its largest value (mag).

@@ -375,8 +375,8 @@ def adapt(prepared: list[Prepared], evaluate, pad_rows: bool = False) -> list[Pr
     found = refine(
         curves,
         lambda probes: evaluate([(prepared[i], p) for i, p in zip(todo, probes, strict=True)]),
-        tol.pop(),
-        level.pop(),
+        next(iter(tol)),
+        last,
     )
     out = list(prepared)
     for i, r in zip(todo, found, strict=True):
