@@ -188,7 +188,7 @@ def fit_spin(
             tolerance_mag=tolerance,
         )
         stage = f"emcee mode {n + 1}/{len(sampled)} (P {modes[i].period_s:.4g} s)"
-        log(f"emcee around mode {i} (Δχ² = {modes[i].chi2 - best_chi2:.1f})")
+        log(f"sampling mode {i} (Δχ² = {modes[i].chi2 - best_chi2:.1f})")
         try:
             runs[i] = mcmc.run_emcee(
                 model,
@@ -198,11 +198,14 @@ def fit_spin(
                 rng,
                 log=log,
                 progress=lambda steps, total, _length, s=stage: progress(s, steps, total),
+                importance=modes[i].chi2 - best_chi2 >= settings.importance_delta_chi2,
             )
         except mcmc.OutsidePriorError as exc:  # a mode at a bound is not a posterior mode
             log(f"mode {i} left out: {exc}")
             continue
         runs[i]["report"] = {
+            "method": runs[i]["method"],
+            **({"ess": runs[i]["ess"]} if "ess" in runs[i] else {}),
             "instants_per_exposure": model.instants_per_exposure,
             "blur_tolerance_mag": tolerance,
         }

@@ -13,7 +13,9 @@
    of an independence proposal (multivariate t fitted to the posterior in a
    short adaptation stage, :class:`IndependenceMove`) and emcee's
    differential-evolution move, run in blocks until the kept chain is ≥ 50
-   integrated autocorrelation times τ long (or ``max_steps``);
+   integrated autocorrelation times τ long (or ``max_steps``); a minor mode
+   (Δχ² ≥ 6) is importance-sampled from its Laplace approximation instead
+   (:mod:`jaxlc.inference.importance`), at a tenth of the cost;
 4. summary (medians, 50 % and 90 % intervals, pole credible radii), samples
    (Parquet), a corner plot and the data with the fitted model.
 
@@ -36,6 +38,7 @@ import pandas as pd
 
 from jaxlc.errors import JaxlcError
 from jaxlc.inference.data import FitData, soft_clip
+from jaxlc.inference.importance import importance_sample
 from jaxlc.inference.laplace import (
     NOISE_BOUNDS_MAG,
     initial_ball,
@@ -73,6 +76,8 @@ class FitSettings:
     block_steps: int = 25
     mcmc_modes: int = 4
     mode_delta_chi2: float = 10.0
+    importance_delta_chi2: float = 6.0  # modes this far above the best: importance-sampled
+    importance_draws: int = 240
     seed: int = 0
     period_s: float | None = None  # skip the periodogram: seed from this period
     body_period_s: float | None = None  # a tumble's T_ω (with period_s its P_ψ)
@@ -86,6 +91,10 @@ class FitSettings:
             raise JaxlcError(f"walkers = {self.walkers} must be ≥ {2 * N_MC} (2 × parameters)")
         if self.max_steps < self.block_steps:
             raise JaxlcError(f"max_steps = {self.max_steps} must be ≥ {self.block_steps}")
+        if self.importance_draws < self.walkers:
+            raise JaxlcError(
+                f"importance_draws = {self.importance_draws} must be ≥ walkers = {self.walkers}"
+            )
         if self.adapt_steps < 10:
             raise JaxlcError(f"adapt_steps = {self.adapt_steps} must be ≥ 10")
 
@@ -192,6 +201,7 @@ def run_emcee(
     rng: np.random.Generator,
     log=None,
     progress=None,
+    importance: bool = False,
 ) -> dict:
     """Sample around one mode until the kept chain is ≥ ``min_tau`` τ long (or ``max_steps``);
     ``log(str)`` gets a line per stage, ``progress(steps, max_steps, length_tau)`` each block.
@@ -200,14 +210,19 @@ def run_emcee(
     ball with the Laplace proposal (:class:`IndependenceMove` + DE), discarded;
     then the proposal refitted to the adaptation stage after its first sixth, fixed, and
     blocks of ``block_steps`` until the kept chain (all of stage two) is long
-    enough. τ is estimated on the kept chain only.
+    enough. τ is estimated on the kept chain only. With ``importance`` (a minor
+    mode) the Laplace approximation is importance-sampled instead
+    (:func:`jaxlc.inference.importance.importance_sample`, ``importance_draws``
+    draws), and emcee runs only when those weights are unusable.
 
     Returns:
         dict with ``chain`` (steps, walkers, 6), ``log_prob`` (steps, walkers),
         ``log_evidence`` (:func:`laplace_log_evidence`),
         ``tau`` (6,), ``steps`` (kept), ``burn`` (discarded), ``acceptance``,
-        ``chain_length_tau``, ``converged``, ``seconds``.
+        ``chain_length_tau``, ``converged``, ``seconds``, ``method``
+        (``"emcee"`` or ``"importance"``, then with ``ess``).
     """
+    log = log or (lambda msg: None)
     lp = log_prob_fn(model, data, float(mode.theta_lm[3]))
     p0, centre, cov = initial_ball(model, data, mode, settings.walkers, rng)
     if not pull_inside(lp, p0, centre):
@@ -215,7 +230,14 @@ def run_emcee(
             f"emcee: the mode at P = {mode.period_s:.6g} s has zero prior density "
             "(noise or Δm at a bound)"
         )
-    return sample_posterior(lp, p0, centre, cov, settings, rng, log, progress)
+    if importance:
+        run = importance_sample(lp, centre, cov, settings.importance_draws, settings.walkers, rng)
+        log(f"  importance sampling: {run['draws']} draws, effective size {run['ess']:.0f}")
+        if run["usable"]:
+            return {**run, "method": "importance"}
+        log("  the Laplace proposal misses this mode: emcee instead")
+    run = sample_posterior(lp, p0, centre, cov, settings, rng, log, progress)
+    return {**run, "method": "emcee"}
 
 
 def pull_inside(lp, p0: np.ndarray, centre: np.ndarray, tries: int = 30) -> bool:

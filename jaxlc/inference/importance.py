@@ -1,0 +1,97 @@
+"""Importance sampling of a minor posterior mode from its Laplace approximation.
+
+A mode well above the best one (Δχ² ≥ ``FitSettings.importance_delta_chi2``)
+holds a few per cent of the posterior at most, yet an emcee run around it
+costs as much as one around the best mode (S4: ~110 s of a 170 s fit). Its
+samples are drawn instead from the multivariate t (ν = 8) of its Laplace
+approximation — the proposal the main chains use — and weighted by posterior
+over proposal. The weights give the mode's evidence Z (their mean: an
+unbiased estimate, where the Laplace formula of the sampled modes is exact
+only for a Gaussian) and, resampled, an unweighted sample of the mode.
+When the proposal fits the mode badly (an effective sample size below
+:data:`MIN_ESS_FRACTION` of the draws) the caller samples it with emcee.
+
+Example:
+    >>> run = importance_sample(lp, centre, cov, draws=240, batch=12, rng=rng)
+    >>> run["log_evidence"], run["ess"]
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+from scipy.special import gammaln, logsumexp
+
+#: Degrees of freedom of the t proposal, and the inflation of its covariance.
+DF = 8.0
+INFLATE = 1.2
+#: Least effective sample size, as a fraction of the draws, of a usable run.
+MIN_ESS_FRACTION = 0.2
+
+
+def t_log_pdf(x: np.ndarray, centre: np.ndarray, chol: np.ndarray, df: float) -> np.ndarray:
+    """(N,) log density of the multivariate t (``centre``, scale ``chol`` chol.T, ``df``)
+    at (N, D) points."""
+    d = x.shape[1]
+    z = np.linalg.solve(chol, (x - centre).T).T
+    log_norm = (
+        gammaln(0.5 * (df + d))
+        - gammaln(0.5 * df)
+        - 0.5 * d * math.log(df * math.pi)
+        - float(np.sum(np.log(np.diag(chol))))
+    )
+    return log_norm - 0.5 * (df + d) * np.log1p(np.sum(z**2, axis=1) / df)
+
+
+def importance_sample(
+    lp, centre: np.ndarray, cov: np.ndarray, draws: int, batch: int, rng: np.random.Generator
+) -> dict:
+    """Draws from the t proposal about a mode, weighted by the posterior ``lp``.
+
+    Args:
+        lp: vectorised log posterior, (batch, D) → (batch,) (−inf outside the prior).
+        centre: (D,) the mode's centre; cov: (D, D) its Laplace covariance.
+        draws: proposals (rounded up to a multiple of ``batch``).
+        batch: points per call of ``lp`` (the shape it was compiled for).
+
+    Returns:
+        dict with ``chain`` (draws / batch, batch, D): the draws resampled by
+        weight (systematic resampling), their ``log_prob``, ``log_evidence``
+        (ln of the mean weight), ``ess`` (effective sample size of the weights),
+        ``draws``, ``usable`` (ess ≥ :data:`MIN_ESS_FRACTION` × draws) and
+        ``seconds``; ``tau``, ``acceptance`` and ``chain_length_tau`` are NaN,
+        ``steps`` the rows of ``chain``, ``burn`` 0 (the keys of an emcee run).
+    """
+    t0 = time.perf_counter()
+    d = len(centre)
+    n = -(-draws // batch) * batch
+    chol = np.linalg.cholesky(cov * INFLATE**2)
+    scale = np.sqrt(DF / rng.chisquare(DF, size=n))
+    x = centre + (rng.standard_normal((n, d)) @ chol.T) * scale[:, None]
+    log_p = np.concatenate([lp(x[k : k + batch]) for k in range(0, n, batch)])
+    log_w = np.where(np.isfinite(log_p), log_p - t_log_pdf(x, centre, chol, DF), -np.inf)
+    if not np.any(np.isfinite(log_w)):
+        log_z, ess, keep = -math.inf, 0.0, np.zeros(n, int)
+    else:
+        log_z = float(logsumexp(log_w) - math.log(n))
+        ess = float(math.exp(2 * logsumexp(log_w) - logsumexp(2 * log_w)))
+        w = np.exp(log_w - np.max(log_w))
+        cdf = np.cumsum(w / np.sum(w))
+        keep = np.minimum(np.searchsorted(cdf, (rng.uniform() + np.arange(n)) / n), n - 1)
+    return {
+        "chain": x[keep].reshape(n // batch, batch, d),
+        "log_prob": log_p[keep].reshape(n // batch, batch),
+        "log_evidence": log_z,
+        "ess": ess,
+        "draws": n,
+        "usable": bool(ess >= MIN_ESS_FRACTION * n),
+        "tau": np.full(d, np.nan),
+        "steps": n // batch,
+        "burn": 0,
+        "acceptance": float("nan"),
+        "chain_length_tau": float("nan"),
+        "converged": bool(ess >= MIN_ESS_FRACTION * n),
+        "seconds": time.perf_counter() - t0,
+    }
