@@ -33,7 +33,8 @@ MIN_ESS_FRACTION = 0.2
 
 def t_log_pdf(x: np.ndarray, centre: np.ndarray, chol: np.ndarray, df: float) -> np.ndarray:
     """(N,) log density of the multivariate t (``centre``, scale ``chol`` chol.T, ``df``)
-    at (N, D) points."""
+    at (N, D) points: this module's proposal and the Hastings factor of
+    :class:`jaxlc.inference.mcmc.IndependenceMove`."""
     d = x.shape[1]
     z = np.linalg.solve(chol, (x - centre).T).T
     log_norm = (
@@ -80,18 +81,19 @@ def importance_sample(
         w = np.exp(log_w - np.max(log_w))
         cdf = np.cumsum(w / np.sum(w))
         keep = np.minimum(np.searchsorted(cdf, (rng.uniform() + np.arange(n)) / n), n - 1)
+    usable = bool(ess >= MIN_ESS_FRACTION * n)
     return {
         "chain": x[keep].reshape(n // batch, batch, d),
         "log_prob": log_p[keep].reshape(n // batch, batch),
         "log_evidence": log_z,
         "ess": ess,
         "draws": n,
-        "usable": bool(ess >= MIN_ESS_FRACTION * n),
+        "usable": usable,
         "tau": np.full(d, np.nan),
         "steps": n // batch,
         "burn": 0,
         "acceptance": float("nan"),
         "chain_length_tau": float("nan"),
-        "converged": bool(ess >= MIN_ESS_FRACTION * n),
+        "converged": usable,
         "seconds": time.perf_counter() - t0,
     }

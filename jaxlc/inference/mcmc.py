@@ -38,7 +38,7 @@ import pandas as pd
 
 from jaxlc.errors import JaxlcError
 from jaxlc.inference.data import FitData, soft_clip
-from jaxlc.inference.importance import importance_sample
+from jaxlc.inference.importance import importance_sample, t_log_pdf
 from jaxlc.inference.laplace import (
     NOISE_BOUNDS_MAG,
     initial_ball,
@@ -167,8 +167,7 @@ class IndependenceMove:
         self.move = emcee.moves.MHMove(self._propose)
 
     def log_q(self, x: np.ndarray) -> np.ndarray:
-        z = np.linalg.solve(self.chol, (x - self.mean).T).T
-        return -0.5 * (self.df + x.shape[1]) * np.log1p(np.sum(z**2, axis=1) / self.df)
+        return t_log_pdf(x, self.mean, self.chol, self.df)
 
     def _propose(self, coords: np.ndarray, random) -> tuple[np.ndarray, np.ndarray]:
         n, d = coords.shape
