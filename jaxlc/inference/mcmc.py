@@ -19,10 +19,9 @@
 4. summary (medians, 50 % and 90 % intervals, pole credible radii), samples
    (Parquet), a corner plot and the data with the fitted model.
 
-Priors (MCMC coordinates, :data:`jaxlc.inference.model.MC_NAMES`): isotropic pole
-(uniform λ and sin β), log-uniform period within a factor 3 of the mode's,
-uniform phase, uniform Δm in [−10, 10] mag, log-uniform noise in
-[10⁻³, 2] mag.
+The posterior and its priors: :mod:`jaxlc.inference.spin_posterior`; the
+samplers see five coordinates, Δm integrated out analytically and drawn from
+its conditional afterwards.
 """
 
 from __future__ import annotations
@@ -31,16 +30,13 @@ import dataclasses
 import math
 import time
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 
 from jaxlc.errors import JaxlcError
-from jaxlc.inference.data import FitData, soft_clip
+from jaxlc.inference.data import FitData
 from jaxlc.inference.importance import importance_sample, t_log_pdf
 from jaxlc.inference.laplace import (
-    NOISE_BOUNDS_MAG,
     initial_ball,
     laplace_log_evidence,
 )
@@ -48,17 +44,11 @@ from jaxlc.inference.model import (
     N_MC,
     SpinModel,
     angle_between_deg,
-    ln_period_ref,
     mc_to_lm,
     pole_radec_deg,
-    to_device,
 )
 from jaxlc.inference.search import Mode
-from jaxlc.rendering.kernel import time_chunk
-from jaxlc.xla import filter_jit
-
-DMAG_BOUNDS = (-10.0, 10.0)
-PERIOD_PRIOR_FACTOR = 3.0
+from jaxlc.inference.spin_posterior import DMAG_MC, MarginalLogProb, marginal_ball, with_dmag
 
 
 @dataclasses.dataclass(frozen=True)
@@ -101,51 +91,6 @@ class FitSettings:
 
 class OutsidePriorError(JaxlcError):
     """A mode whose Laplace ball cannot be pulled inside the prior (not sampled)."""
-
-
-@filter_jit
-def _log_prob(model: SpinModel, mag, err2, bounds, thetas):
-    """(W,) log-posterior of (W, 6) MCMC coordinates (compiled once per model layout)."""
-
-    # Blocks of samples small enough that all walkers' (samples × facets) arrays
-    # stay in the cache: with one curve's block size each walker costs 2× more
-    # (S4, 12 walkers: 16 vs 7.6 ms per walker).
-    chunk = time_chunk(model.obj.n_facets * thetas.shape[0])
-
-    def one(theta):
-        lo, hi = bounds[0], bounds[1]
-        inside = (jnp.abs(theta[1]) <= 1) & jnp.all(theta[2:] >= lo) & jnp.all(theta[2:] <= hi)
-        m = model.magnitudes(mc_to_lm(theta), chunk=chunk)
-        var = err2 + jnp.exp(2 * theta[5])
-        ll = -0.5 * jnp.sum((m - mag) ** 2 / var + jnp.log(2 * jnp.pi * var))
-        return jnp.where(inside & jnp.isfinite(ll), ll, -jnp.inf)
-
-    return jax.vmap(one)(thetas)
-
-
-def log_prob_fn(model: SpinModel, data: FitData, ln_period_center: float):
-    """Jitted, vmapped log-posterior of MCMC coordinates: (W, 6) → (W,) numpy. The period
-    prior: within a factor :data:`PERIOD_PRIOR_FACTOR` of the mode's, at most the span."""
-    mag = jnp.asarray(soft_clip(data.mag, data.limit_mag), jnp.float32)
-    err2 = jnp.asarray(data.mag_err**2, jnp.float32)
-    # The device sees ln P relative to the model's reference period (to_device).
-    ref = ln_period_ref(model)
-    lnp = (
-        ln_period_center - ref - math.log(PERIOD_PRIOR_FACTOR),
-        min(ln_period_center + math.log(PERIOD_PRIOR_FACTOR), math.log(data.span_s)) - ref,
-    )
-    noise = tuple(math.log(b) for b in NOISE_BOUNDS_MAG)
-    # bounds of coordinates 2… 5: ln P, φ (unbounded: periodic), Δm, ln σ
-    bounds = jnp.asarray(
-        [[lnp[0], -np.inf, DMAG_BOUNDS[0], noise[0]], [lnp[1], np.inf, DMAG_BOUNDS[1], noise[1]]],
-        jnp.float32,
-    )
-
-    def log_prob(thetas: np.ndarray) -> np.ndarray:
-        out = _log_prob(model, mag, err2, bounds, to_device(model, thetas, index=2))
-        return np.asarray(out, np.float64)
-
-    return log_prob
 
 
 class IndependenceMove:
@@ -222,8 +167,8 @@ def run_emcee(
         (``"emcee"`` or ``"importance"``, then with ``ess``).
     """
     log = log or (lambda msg: None)
-    lp = log_prob_fn(model, data, float(mode.theta_lm[3]))
-    p0, centre, cov = initial_ball(model, data, mode, settings.walkers, rng)
+    lp = MarginalLogProb(model, data, float(mode.theta_lm[3]))
+    p0, centre, cov = marginal_ball(*initial_ball(model, data, mode, settings.walkers, rng))
     if not pull_inside(lp, p0, centre):
         raise OutsidePriorError(
             f"emcee: the mode at P = {mode.period_s:.6g} s has zero prior density "
@@ -233,10 +178,22 @@ def run_emcee(
         run = importance_sample(lp, centre, cov, settings.importance_draws, settings.walkers, rng)
         log(f"  importance sampling: {run['draws']} draws, effective size {run['ess']:.0f}")
         if run["usable"]:
-            return {**run, "method": "importance"}
+            return {**full_coordinates(run, lp, rng), "method": "importance"}
         log("  the Laplace proposal misses this mode: emcee instead")
     run = sample_posterior(lp, p0, centre, cov, settings, rng, log, progress)
-    return {**run, "method": "emcee"}
+    return {**full_coordinates(run, lp, rng), "method": "emcee"}
+
+
+def full_coordinates(run: dict, lp: MarginalLogProb, rng) -> dict:
+    """A five-coordinate run (Δm integrated out) in the six MCMC coordinates: Δm drawn
+    from its conditional (:func:`with_dmag`); its τ is NaN (the draws are independent)."""
+    chain, log_prob = with_dmag(run["chain"], run["log_prob"], lp, rng)
+    return {
+        **run,
+        "chain": chain,
+        "log_prob": log_prob,
+        "tau": np.insert(run["tau"], DMAG_MC, np.nan),
+    }
 
 
 def pull_inside(lp, p0: np.ndarray, centre: np.ndarray, tries: int = 30) -> bool:

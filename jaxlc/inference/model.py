@@ -108,9 +108,12 @@ class FitModel(eqx.Module):
         for one curve, see :func:`jaxlc.rendering.kernel.time_chunk`). Under
         ``vmap`` over W parameter vectors pass ``time_chunk(n_facets × W)``.
         """
+        return soft_clip(self.unclipped_magnitudes(theta_lm, chunk), self.limit_mag)
+
+    def unclipped_magnitudes(self, theta_lm, chunk=None):
+        """(N,) model magnitudes before the faint clip (Δm enters them additively)."""
         i = self.intensity(theta_lm, chunk)
-        m = self.const_mag - 2.5 * jnp.log10(i + self.floor_m2_sr) + theta_lm[self.dmag_index]
-        return soft_clip(m, self.limit_mag)
+        return self.const_mag - 2.5 * jnp.log10(i + self.floor_m2_sr) + theta_lm[self.dmag_index]
 
 
 def intensity_floor_m2_sr(scene: Scene) -> float:

@@ -2,7 +2,7 @@
 
 Priors (MCMC coordinates, :mod:`jaxlc.inference.tumble_model`): the moment
 coordinates uniform in :data:`LN_MOMENT_RATIO_PRIOR`; ω log-uniform in
-magnitude within a factor :data:`~jaxlc.inference.mcmc.PERIOD_PRIOR_FACTOR`
+magnitude within a factor :data:`~jaxlc.inference.spin_posterior.PERIOD_PRIOR_FACTOR`
 of the mode's and uniform in direction; a uniform attitude (Haar measure in
 the rotation-vector chart, |δ| < π); Δm uniform in ±10 mag; noise
 log-uniform in [10⁻³, 2] mag.
@@ -20,7 +20,7 @@ import pandas as pd
 from jaxlc.inference import mcmc
 from jaxlc.inference.data import FitData, soft_clip
 from jaxlc.inference.laplace import NOISE_BOUNDS_MAG
-from jaxlc.inference.mcmc import DMAG_BOUNDS, PERIOD_PRIOR_FACTOR
+from jaxlc.inference.spin_posterior import DMAG_BOUNDS, PERIOD_PRIOR_FACTOR
 from jaxlc.inference.tumble_model import (
     N_TUMBLE_MC,
     TumbleModel,
