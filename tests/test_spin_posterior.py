@@ -2,6 +2,7 @@
 six-coordinate likelihood over a Δm grid (the slow twin)."""
 
 import dataclasses
+import math
 
 import jax
 import numpy as np
@@ -11,7 +12,8 @@ from scipy.integrate import trapezoid
 import jaxlc
 from jaxlc.inference.data import fit_data, soft_clip
 from jaxlc.inference.model import lm_to_mc, mc_to_lm, spin_model, to_device, truth_theta
-from jaxlc.inference.spin_posterior import DMAG_MC, MarginalLogProb, with_dmag
+from jaxlc.inference.offset_marginal import with_offset
+from jaxlc.inference.spin_posterior import DMAG_MC, MarginalLogProb
 from jaxlc.xla import filter_jit
 
 
@@ -77,9 +79,9 @@ def test_marginal_over_dmag_matches_brute_force_integration(cubesat, clip_above_
         assert d == pytest.approx(mean, abs=0.05 * sd_ref)
         assert sd == pytest.approx(sd_ref, rel=0.03)
 
-    # with_dmag: the joint ln posterior it reports is the six-coordinate one
+    # with_offset: the joint ln posterior it reports is the six-coordinate one
     chain5, lp5 = points[None], got[None]
-    chain6, lp6 = with_dmag(chain5, lp5, lp, np.random.default_rng(0))
+    chain6, lp6 = with_offset(chain5, lp5, lp, np.random.default_rng(0))
     assert chain6.shape == (1, 2, 6)
     np.testing.assert_allclose(np.delete(chain6[0], DMAG_MC, axis=1), points)
     np.testing.assert_allclose(
@@ -96,3 +98,50 @@ def test_marginal_refuses_points_outside_the_prior(cubesat):
     far = x5 + np.array([[0, 0, np.log(4.0), 0, 0], [0, 0, 0, 0, 4.0], [0, 0, 0, 0, 0]])
     got = lp(far)
     assert np.isneginf(got[:2]).all() and np.isfinite(got[2])
+
+
+@pytest.mark.parametrize(
+    "noise_mag, err_mag", [(0.05, 0.0), (0.05, 0.01), (0.003, 0.05), (0.0, 0.0)]
+)
+def test_noise_coordinate_moments_match_quadrature(noise_mag, err_mag):
+    """The ln σ ball the samplers start from (``noise_moments``) against scipy's adaptive
+    quadrature of the same one-dimensional posterior: noise dominating the errors
+    (the Laplace value 1/(2N) holds), errors dominating (a plateau from the prior's
+    floor, ~100× broader than 1/(2N)), and a noise-free curve (against the floor)."""
+    from scipy.integrate import quad
+
+    from jaxlc.inference.laplace import NOISE_BOUNDS_MAG, noise_moments
+
+    n, k = 1200, 5
+    rng = np.random.default_rng(7)
+    r = rng.standard_normal(n) * math.hypot(noise_mag, err_mag)
+    err2 = np.full(n, err_mag**2)
+    mean, var = noise_moments(r, err2, k)
+
+    r2 = np.sum(r**2) * n / (n - k)
+
+    def ll(s):
+        v = err_mag**2 + math.exp(2 * s)
+        return -0.5 * (r2 / v + n * math.log(v))
+
+    lo, hi = (math.log(b) for b in NOISE_BOUNDS_MAG)
+    scan = np.linspace(lo, hi, 20001)
+    values = [ll(s) for s in scan]
+    top, peak = max(values), scan[int(np.argmax(values))]
+    # break points where the mass is: near the peak and (geometrically) near the floor
+    near = peak + np.linspace(-20, 20, 81) / math.sqrt(n)
+    floor = lo + np.geomspace(1e-6, hi - lo, 60)
+    points = np.unique(np.clip(np.r_[near, floor], lo + 1e-9, hi - 1e-9))
+
+    def moment(j):
+        return quad(lambda s: s**j * math.exp(ll(s) - top), lo, hi, points=points, limit=800)[0]
+
+    z = moment(0)
+    ref_mean = moment(1) / z
+    ref_var = moment(2) / z - ref_mean**2
+    assert mean == pytest.approx(ref_mean, abs=0.02 * math.sqrt(ref_var))
+    assert var == pytest.approx(ref_var, rel=0.02)
+    if err_mag == 0 and noise_mag > 0:  # the Laplace value
+        assert var == pytest.approx(1 / (2 * n), rel=0.1)
+    if err_mag > noise_mag > 0:
+        assert var > 50 / (2 * n)

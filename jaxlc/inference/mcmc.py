@@ -47,8 +47,9 @@ from jaxlc.inference.model import (
     mc_to_lm,
     pole_radec_deg,
 )
+from jaxlc.inference.offset_marginal import OffsetConditionals, marginal_ball, with_offset
 from jaxlc.inference.search import Mode
-from jaxlc.inference.spin_posterior import DMAG_MC, MarginalLogProb, marginal_ball, with_dmag
+from jaxlc.inference.spin_posterior import DMAG_MC, MarginalLogProb
 
 
 @dataclasses.dataclass(frozen=True)
@@ -168,7 +169,9 @@ def run_emcee(
     """
     log = log or (lambda msg: None)
     lp = MarginalLogProb(model, data, float(mode.theta_lm[3]))
-    p0, centre, cov = marginal_ball(*initial_ball(model, data, mode, settings.walkers, rng))
+    p0, centre, cov = marginal_ball(
+        *initial_ball(model, data, mode, settings.walkers, rng), DMAG_MC
+    )
     if not pull_inside(lp, p0, centre):
         raise OutsidePriorError(
             f"emcee: the mode at P = {mode.period_s:.6g} s has zero prior density "
@@ -184,15 +187,16 @@ def run_emcee(
     return {**full_coordinates(run, lp, rng), "method": "emcee"}
 
 
-def full_coordinates(run: dict, lp: MarginalLogProb, rng) -> dict:
-    """A five-coordinate run (Δm integrated out) in the six MCMC coordinates: Δm drawn
-    from its conditional (:func:`with_dmag`); its τ is NaN (the draws are independent)."""
-    chain, log_prob = with_dmag(run["chain"], run["log_prob"], lp, rng)
+def full_coordinates(run: dict, lp: OffsetConditionals, rng) -> dict:
+    """A run of a marginal posterior (Δm integrated out) in all MCMC coordinates: Δm
+    drawn from its conditional (:func:`~jaxlc.inference.offset_marginal.with_offset`);
+    its τ is NaN (the draws are independent)."""
+    chain, log_prob = with_offset(run["chain"], run["log_prob"], lp, rng)
     return {
         **run,
         "chain": chain,
         "log_prob": log_prob,
-        "tau": np.insert(run["tau"], DMAG_MC, np.nan),
+        "tau": np.insert(run["tau"], lp.offset_index, np.nan),
     }
 
 

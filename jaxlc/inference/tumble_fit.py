@@ -6,7 +6,9 @@
    bodies whose (P_ψ, T_ω) make the observed periods small combinations;
 3. emcee around the best modes (within Δχ² < ``mode_delta_chi2``), in the
    chart of :mod:`jaxlc.inference.tumble_model` about each mode, with the
-   sampler of the spin fit (:func:`jaxlc.inference.mcmc.sample_posterior`);
+   sampler of the spin fit (:func:`jaxlc.inference.mcmc.sample_posterior`), Δm
+   integrated out as in the spin fit (:mod:`jaxlc.inference.offset_marginal`)
+   and drawn from its conditional afterwards;
 4. the summary: both periods (P_ψ, the mean rotation about L, and T_ω, ω's
    period in the body), the mode (SAM/LAM), excitation, L's direction, the
    moment ratios, Δm and noise, with 50 %/90 % intervals; the best mode is the
@@ -30,6 +32,7 @@ from jaxlc.inference import mcmc
 from jaxlc.inference.data import fit_data
 from jaxlc.inference.fit import write_outputs
 from jaxlc.inference.mcmc import FitSettings
+from jaxlc.inference.offset_marginal import marginal_ball
 from jaxlc.inference.period import analyse_period
 from jaxlc.inference.posterior_modes import mode_rows, weighted_samples
 from jaxlc.inference.tumble_model import (
@@ -39,9 +42,10 @@ from jaxlc.inference.tumble_model import (
     tumble_model,
 )
 from jaxlc.inference.tumble_posterior import (
+    DMAG_MC,
+    MarginalLogProb,
     initial_ball,
     interval_summary,
-    log_prob_fn,
     samples_table,
 )
 from jaxlc.inference.tumble_search import (
@@ -147,8 +151,9 @@ def fit_tumble(
     for n, i in enumerate(sampled):
         model = tumble_model(scene, data, modes[i].theta_lm, rate_ref, exact=True, adapted=True)
         p0, centre, cov, q_mode = initial_ball(model, data, modes[i], walkers, rng)
-        lp = log_prob_fn(model, data, centre, q_mode)
-        if not mcmc.pull_inside(lp, p0, centre):
+        lp = MarginalLogProb(model, data, centre, q_mode)
+        p0, centre9, cov = marginal_ball(p0, centre, cov, DMAG_MC)
+        if not mcmc.pull_inside(lp, p0, centre9):
             log(
                 f"mode {i} left out: its Laplace ball lies outside the prior (centre "
                 + ", ".join(f"{n} {v:.4g}" for n, v in zip(TUMBLE_MC_NAMES, centre, strict=True))
@@ -156,17 +161,17 @@ def fit_tumble(
             )
             continue
         stage = f"emcee mode {n + 1}/{len(sampled)}"
-        runs[i] = mcmc.sample_posterior(
+        run = mcmc.sample_posterior(
             lp,
             p0,
-            centre,
+            centre9,
             cov,
             settings,
             rng,
             log=log,
             progress=lambda steps, total, _length, s=stage: progress(s, steps, total),
         )
-        runs[i]["model"] = model
+        runs[i] = {**mcmc.full_coordinates(run, lp, rng), "model": model}
         tables.append(samples_table(runs[i]["chain"], runs[i]["log_prob"], i, q_mode, rate_ref))
     sampled = [i for i in sampled if i in runs]
     if not sampled:

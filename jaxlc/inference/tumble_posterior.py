@@ -19,7 +19,8 @@ import pandas as pd
 
 from jaxlc.inference import mcmc
 from jaxlc.inference.data import FitData, soft_clip
-from jaxlc.inference.laplace import NOISE_BOUNDS_MAG
+from jaxlc.inference.laplace import NOISE_BOUNDS_MAG, noise_moments
+from jaxlc.inference.offset_marginal import OffsetConditionals, integrate_offset
 from jaxlc.inference.spin_posterior import DMAG_BOUNDS, PERIOD_PRIOR_FACTOR
 from jaxlc.inference.tumble_model import (
     N_TUMBLE_MC,
@@ -39,56 +40,71 @@ from jaxlc.xla import filter_jit
 LN_MOMENT_RATIO_PRIOR = (-10.0, 10.0)
 
 
-@filter_jit
-def _log_prob(model: TumbleModel, mag, err2, q_mode, bounds, thetas):
-    """(W,) log-posterior of (W, 10) MCMC coordinates about ``q_mode``."""
-    chunk = time_chunk(model.obj.n_facets * thetas.shape[0])
+#: Index of Δm among the tumble's ten MCMC coordinates; the other nine are sampled.
+DMAG_MC = 8
 
-    def one(theta):
+
+@filter_jit
+def _marginal_log_prob(model: TumbleModel, mag, err2, q_mode, bounds, x9):
+    """(W,) log-posterior of (W, 9) MCMC coordinates about ``q_mode`` with Δm integrated
+    out, and Δm's conditional mean and sd there
+    (:func:`~jaxlc.inference.offset_marginal.integrate_offset`)."""
+    chunk = time_chunk(model.obj.n_facets * x9.shape[0])
+
+    def one(x):
+        theta = jnp.concatenate([x[:DMAG_MC], jnp.zeros(1, x.dtype), x[DMAG_MC:]])
         ln_rate = 0.5 * jnp.log(jnp.sum(theta[2:5] ** 2))
         angle = jnp.sqrt(jnp.sum(theta[5:8] ** 2) + 1e-30)
+        raw = model.unclipped_magnitudes(mc_to_lm(theta, q_mode), chunk=chunk)
+        ll, mean, sd = integrate_offset(raw, mag, err2, theta[9], model.limit_mag)
         inside = (
             jnp.all(theta[0:2] >= bounds[0, 0])
             & jnp.all(theta[0:2] <= bounds[1, 0])
             & (ln_rate >= bounds[0, 1])
             & (ln_rate <= bounds[1, 1])
             & (angle < jnp.pi)
-            & (theta[8] >= bounds[0, 2])
-            & (theta[8] <= bounds[1, 2])
+            & (mean >= bounds[0, 2])
+            & (mean <= bounds[1, 2])
             & (theta[9] >= bounds[0, 3])
             & (theta[9] <= bounds[1, 3])
         )
-        m = model.magnitudes(mc_to_lm(theta, q_mode), chunk=chunk)
-        var = err2 + jnp.exp(2 * theta[9])
-        ll = -0.5 * jnp.sum((m - mag) ** 2 / var + jnp.log(2 * jnp.pi * var))
         # log-uniform |ω| (density ∝ |ω|⁻³ in ℝ³); Haar measure in the rotation vector
         prior = -3.0 * ln_rate + 2.0 * jnp.log(jnp.sin(0.5 * angle) / (0.5 * angle))
-        return jnp.where(inside & jnp.isfinite(ll), ll + prior, -jnp.inf)
+        return jnp.where(inside & jnp.isfinite(ll), ll + prior, -jnp.inf), mean, sd
 
-    return jax.vmap(one)(thetas)
+    return jax.vmap(one)(x9)
 
 
-def log_prob_fn(model: TumbleModel, data: FitData, centre: np.ndarray, q_mode: np.ndarray):
-    """Jitted, vmapped log-posterior (W, 10) → (W,) numpy about one mode (module priors)."""
-    mag = jnp.asarray(soft_clip(data.mag, data.limit_mag), jnp.float32)
-    err2 = jnp.asarray(data.mag_err**2, jnp.float32)
-    ln_rate = 0.5 * math.log(float(np.sum(centre[2:5] ** 2)))
-    factor = math.log(PERIOD_PRIOR_FACTOR)
-    noise = tuple(math.log(b) for b in NOISE_BOUNDS_MAG)
-    bounds = jnp.asarray(
-        [
-            [LN_MOMENT_RATIO_PRIOR[0], ln_rate - factor, DMAG_BOUNDS[0], noise[0]],
-            [LN_MOMENT_RATIO_PRIOR[1], ln_rate + factor, DMAG_BOUNDS[1], noise[1]],
-        ],
-        jnp.float32,
-    )
-    q = jnp.asarray(q_mode, jnp.float32)
+class MarginalLogProb(OffsetConditionals):
+    """The vectorised nine-coordinate log posterior of a mode, (W, 9) → (W,) numpy (the
+    ten MCMC coordinates less Δm, integrated out; module priors), that keeps Δm's
+    conditional (mean, sd) of every point it evaluated (for
+    :func:`~jaxlc.inference.offset_marginal.with_offset`)."""
 
-    def log_prob(thetas: np.ndarray) -> np.ndarray:
-        t = jnp.asarray(thetas, jnp.float32)
-        return np.asarray(_log_prob(model, mag, err2, q, bounds, t), np.float64)
+    def __init__(self, model: TumbleModel, data: FitData, centre: np.ndarray, q_mode):
+        super().__init__(DMAG_MC)
+        self.model = model
+        self.mag = jnp.asarray(soft_clip(data.mag, data.limit_mag), jnp.float32)
+        self.err2 = jnp.asarray(data.mag_err**2, jnp.float32)
+        ln_rate = 0.5 * math.log(float(np.sum(centre[2:5] ** 2)))
+        factor = math.log(PERIOD_PRIOR_FACTOR)
+        noise = tuple(math.log(b) for b in NOISE_BOUNDS_MAG)
+        self.bounds = jnp.asarray(
+            [
+                [LN_MOMENT_RATIO_PRIOR[0], ln_rate - factor, DMAG_BOUNDS[0], noise[0]],
+                [LN_MOMENT_RATIO_PRIOR[1], ln_rate + factor, DMAG_BOUNDS[1], noise[1]],
+            ],
+            jnp.float32,
+        )
+        self.q_mode = jnp.asarray(q_mode, jnp.float32)
 
-    return log_prob
+    def __call__(self, x9: np.ndarray) -> np.ndarray:
+        x9 = np.ascontiguousarray(x9, np.float64)
+        ll, d, sd = _marginal_log_prob(
+            self.model, self.mag, self.err2, self.q_mode, self.bounds, jnp.asarray(x9, jnp.float32)
+        )
+        self.remember(x9, d, sd)
+        return np.asarray(ll, np.float64)
 
 
 @filter_jit
@@ -111,9 +127,10 @@ def initial_ball(model: TumbleModel, data: FitData, mode: TumbleMode, walkers: i
 
     The centre is first moved by up to :data:`RECENTRE_STEPS` Gauss–Newton steps to
     the optimum of ``model`` (the sampled model's sub-exposures are chosen at the
-    mode); the noise coordinate starts at the excess scatter of its residuals over the
-    data's errors (at least the prior's floor); covariance σ² (JᵀJ)⁻¹ of the first
-    nine coordinates, ln σ ± 1/√(2N).
+    mode), weighting the residuals by the data's errors and their excess scatter (at
+    least the prior's floor); covariance σ² (JᵀJ)⁻¹ of the first nine coordinates;
+    ln σ gets the mean and variance of its own posterior given the residuals
+    (:func:`~jaxlc.inference.laplace.noise_moments`).
     """
     centre, q_mode = lm_to_mc(mode.theta_lm, max(mode.noise_mag, NOISE_BOUNDS_MAG[0]))
     q = jnp.asarray(q_mode, jnp.float32)
@@ -137,7 +154,7 @@ def initial_ball(model: TumbleModel, data: FitData, mode: TumbleMode, walkers: i
         x9 = x9 + step
         r, jac, noise, sigma, chi2 = got
     centre[:9] = x9
-    centre[9] = math.log(noise) + 1.0 / data.n  # inside the prior at the noise floor
+    centre[9], noise_var = noise_moments(r, err2, N_TUMBLE_MC - 1)
     jw = jac / sigma[:, None]
     cov = np.zeros((N_TUMBLE_MC, N_TUMBLE_MC))
     try:
@@ -147,7 +164,7 @@ def initial_ball(model: TumbleModel, data: FitData, mode: TumbleMode, walkers: i
         cov[:9, :9] = c9
     except np.linalg.LinAlgError:
         cov[:9, :9] = np.diag(np.full(9, 1e-3))
-    cov[9, 9] = 1.0 / (2 * data.n)
+    cov[9, 9] = noise_var
     p0 = centre + rng.standard_normal((walkers, N_TUMBLE_MC)) @ np.linalg.cholesky(cov).T
     return p0, centre, cov, q_mode
 
