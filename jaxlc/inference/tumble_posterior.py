@@ -142,17 +142,17 @@ def initial_ball(model: TumbleModel, data: FitData, mode: TumbleMode, walkers: i
         r = np.asarray(m, np.float64) - mag
         noise = math.sqrt(max(float(np.mean(r**2 - err2)), NOISE_BOUNDS_MAG[0] ** 2))
         sigma = np.sqrt(err2 + noise**2)
-        return r, np.asarray(jac, np.float64), noise, sigma, float(np.sum((r / sigma) ** 2))
+        return r, np.asarray(jac, np.float64), sigma, float(np.sum((r / sigma) ** 2))
 
     x9 = centre[:9].copy()
-    r, jac, noise, sigma, chi2 = at(x9)
+    r, jac, sigma, chi2 = at(x9)
     for _ in range(RECENTRE_STEPS):
         step, *_ = np.linalg.lstsq(jac / sigma[:, None], -r / sigma, rcond=None)
         got = at(x9 + step)
-        if not (np.isfinite(got[4]) and got[4] < chi2):
+        if not (np.isfinite(got[3]) and got[3] < chi2):
             break
         x9 = x9 + step
-        r, jac, noise, sigma, chi2 = got
+        r, jac, sigma, chi2 = got
     centre[:9] = x9
     centre[9], noise_var = noise_moments(r, err2, N_TUMBLE_MC - 1)
     jw = jac / sigma[:, None]
