@@ -23,7 +23,8 @@ def mode_rows(
     modes, runs: dict, samples: pd.DataFrame, best_chi2: float, names, walkers: int, summarise
 ) -> list[dict]:
     """One row per mode (``describe``, and for a sampled one its weight and chain:
-    intervals by ``summarise``, evidence, acceptance, τ per coordinate ``names``,
+    intervals by ``summarise``, evidence, acceptance, τ per coordinate ``names`` (or
+    the run's own ``tau_names``: those it was sampled in),
     lengths, plus any extra ``runs[i]["report"]`` entries), listed by weight, the
     unsampled ones after them by χ². The first is the fit's answer: the mode of
     highest posterior weight (not of least χ²: a narrow mode can fit best and still
@@ -38,7 +39,7 @@ def mode_rows(
                 "intervals": summarise(samples[samples["mode"] == i]),
                 "log_evidence": r["log_evidence"],
                 "acceptance": r["acceptance"],
-                "tau": dict(zip(names, map(float, r["tau"]), strict=True)),
+                "tau": dict(zip(r.get("tau_names", names), map(float, r["tau"]), strict=True)),
                 "steps": r["steps"],
                 "burn_in": r["burn"],
                 "walkers": walkers,

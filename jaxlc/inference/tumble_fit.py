@@ -5,7 +5,8 @@
 2. :func:`jaxlc.inference.tumble_search.tumble_multistart`: batched LM from
    bodies whose (P_ψ, T_ω) make the observed periods small combinations;
 3. emcee around the best modes (within Δχ² < ``mode_delta_chi2``), in the
-   chart of :mod:`jaxlc.inference.tumble_model` about each mode, with the
+   chart of :mod:`jaxlc.inference.tumble_model` about each mode with both
+   periods as coordinates (:mod:`jaxlc.inference.tumble_chart`), with the
    sampler of the spin fit (:func:`jaxlc.inference.mcmc.sample_posterior`), Δm
    integrated out as in the spin fit (:mod:`jaxlc.inference.offset_marginal`)
    and drawn from its conditional afterwards;
@@ -35,6 +36,7 @@ from jaxlc.inference.mcmc import FitSettings
 from jaxlc.inference.offset_marginal import marginal_ball
 from jaxlc.inference.period import analyse_period
 from jaxlc.inference.posterior_modes import mode_rows, weighted_samples
+from jaxlc.inference.tumble_chart import in_period_chart, plain_run
 from jaxlc.inference.tumble_model import (
     N_TUMBLE_LM,
     N_TUMBLE_MC,
@@ -153,6 +155,7 @@ def fit_tumble(
         p0, centre, cov, q_mode = initial_ball(model, data, modes[i], walkers, rng)
         lp = MarginalLogProb(model, data, centre, q_mode)
         p0, centre9, cov = marginal_ball(p0, centre, cov, DMAG_MC)
+        lp, p0, centre9, cov = in_period_chart(lp, p0, centre9, cov, rate_ref, log)
         if not mcmc.pull_inside(lp, p0, centre9):
             log(
                 f"mode {i} left out: its Laplace ball lies outside the prior (centre "
@@ -171,7 +174,7 @@ def fit_tumble(
             log=log,
             progress=lambda steps, total, _length, s=stage: progress(s, steps, total),
         )
-        runs[i] = {**mcmc.full_coordinates(run, lp, rng), "model": model}
+        runs[i] = {**plain_run(mcmc.full_coordinates(run, lp, rng), lp), "model": model}
         tables.append(samples_table(runs[i]["chain"], runs[i]["log_prob"], i, q_mode, rate_ref))
     sampled = [i for i in sampled if i in runs]
     if not sampled:

@@ -98,13 +98,19 @@ class MarginalLogProb(OffsetConditionals):
         )
         self.q_mode = jnp.asarray(q_mode, jnp.float32)
 
-    def __call__(self, x9: np.ndarray) -> np.ndarray:
-        x9 = np.ascontiguousarray(x9, np.float64)
+    def evaluate(self, x9: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(W,) log posterior of (W, 9) points and Δm's conditional mean and sd there
+        (nothing remembered)."""
         ll, d, sd = _marginal_log_prob(
             self.model, self.mag, self.err2, self.q_mode, self.bounds, jnp.asarray(x9, jnp.float32)
         )
+        return np.asarray(ll, np.float64), np.asarray(d), np.asarray(sd)
+
+    def __call__(self, x9: np.ndarray) -> np.ndarray:
+        x9 = np.ascontiguousarray(x9, np.float64)
+        ll, d, sd = self.evaluate(x9)
         self.remember(x9, d, sd)
-        return np.asarray(ll, np.float64)
+        return ll
 
 
 @filter_jit
