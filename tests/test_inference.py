@@ -234,6 +234,29 @@ def test_failed_solves_are_counted_and_left_out(cubesat_case):
     assert len(modes) == 1 and np.all(np.isfinite(modes[0][0]))
 
 
+def test_refinement_keeps_the_best_optimum_of_every_period():
+    """Eight optima of one period (P/3 and its twins) ranked above the best optimum at
+    3P by the coarse model: the refined set (eight) still holds the 3P optimum and the
+    best of each other period, and is ordered by cost."""
+    from jaxlc.inference.search import refinement_set
+
+    def optimum(period_s, cost, pole):
+        return (np.array([*pole, math.log(period_s), 0.0, 0.0]), cost, 1)
+
+    rng = np.random.default_rng(0)
+    third = [optimum(40.65, 1.0 + 0.01 * k, rng.normal(size=3)) for k in range(10)]
+    others = [optimum(121.94, 1.5, [0, 0, 1]), optimum(60.97, 1.7, [1, 0, 0])]
+    candidates = sorted(third + others, key=lambda c: c[1])
+    chosen = refinement_set(candidates, 8)
+    periods = [round(math.exp(c[0][3]), 2) for c in chosen]
+    assert len(chosen) == 8 and {121.94, 60.97} <= set(periods)
+    assert periods.count(40.65) == 6 and chosen[0] is candidates[0]
+    assert [c[1] for c in chosen] == sorted(c[1] for c in chosen)
+    # distinct within 1 % in ln P: a second optimum of a period is not a "best of"
+    near = optimum(40.65 * 1.005, 2.0, [0, 1, 0])
+    assert refinement_set([*third[:2], near], 2) == third[:2]
+
+
 def test_fit_cli(cubesat_case, tmp_path, monkeypatch, capsys):
     """``jaxlc fit`` end to end on files; a light curve without matching geometry
     rows is refused with the row named, before any work."""
