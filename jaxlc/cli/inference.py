@@ -242,6 +242,14 @@ def fit(
             "but another state; raise --starts or check the scene's shape",
             style="yellow",
         )
+    if result.get("poor_fit"):
+        err.print(
+            f"warning: the best tumble leaves {result['scatter_mag']:.3f} mag of scatter "
+            f"about a curve with {result['data_noise_mag']:.3f} mag of noise: it is not "
+            "this curve's tumble (the search missed it, or the shape is wrong); give both "
+            "periods (--period-s P_ψ --body-period-s T_ω) or raise --starts",
+            style="yellow",
+        )
     if not d["converged"]:
         err.print(
             f"warning: chain only {d['chain_length_tau']:.0f} τ long; raise --max-steps",

@@ -38,6 +38,30 @@ def soft_clip(mag, limit_mag):
     return limit_mag - w * np.logaddexp(0.0, (limit_mag - np.asarray(mag)) / w)
 
 
+#: Samples of the local quadratic that estimates a curve's white noise.
+LOCAL_NOISE_WINDOW = 5
+
+
+def local_noise_mag(mag) -> float:
+    """A model-free estimate of a curve's white noise (mag): the robust scatter (1.4826 ×
+    MAD) of its samples, in time order, about a quadratic through each
+    :data:`LOCAL_NOISE_WINDOW` consecutive ones (Savitzky–Golay), divided by that
+    filter's residual factor √(1 − 2c₀ + Σc²). A signal smooth over five samples
+    leaves only the noise; glints and gaps move a median little. NaN below 10 samples.
+    """
+    from scipy.signal import savgol_coeffs, savgol_filter
+
+    m = np.asarray(mag, np.float64)
+    m = m[np.isfinite(m)]
+    if m.size < 10:
+        return float("nan")
+    w = LOCAL_NOISE_WINDOW
+    c = savgol_coeffs(w, 2)
+    r = m - savgol_filter(m, w, 2)
+    mad = 1.4826 * float(np.median(np.abs(r - np.median(r))))
+    return mad / float(np.sqrt(1.0 - 2.0 * c[w // 2] + np.sum(c**2)))
+
+
 @dataclasses.dataclass(frozen=True)
 class FitData:
     """Observed samples with their geometry (host side, float64).

@@ -30,7 +30,7 @@ import pandas as pd
 
 from jaxlc.errors import JaxlcError
 from jaxlc.inference import mcmc
-from jaxlc.inference.data import fit_data
+from jaxlc.inference.data import fit_data, local_noise_mag
 from jaxlc.inference.fit import write_outputs
 from jaxlc.inference.mcmc import FitSettings
 from jaxlc.inference.offset_marginal import marginal_ball
@@ -71,6 +71,12 @@ CORNER_COLUMNS = (
 TUMBLE_SEARCH_SAMPLES = 256
 #: Walkers of the tumble's emcee: at least 2 × its parameters, with a margin.
 MIN_WALKERS = 2 * N_TUMBLE_MC + 4
+#: A best tumble whose scatter about the data exceeds this multiple of the curve's
+#: white noise (its errors, or :func:`~jaxlc.inference.data.local_noise_mag` without
+#: them) does not explain the curve (summary ``poor_fit``): the blind cylinder search's
+#: best state left 0.20 mag where the noise is 0.02 (a one-period Fourier series
+#: leaves 0.20 mag too: it is no yardstick for a tumbler).
+POOR_FIT_FACTOR = 1.5
 
 
 def fit_tumble(
@@ -137,6 +143,15 @@ def fit_tumble(
     )
     timings["map_s"] = time.perf_counter() - t1
     dof = max(data.n - N_TUMBLE_LM, 1)
+    errors = float(np.median(data.mag_err**2))
+    map_scatter = math.sqrt(modes[0].chi2 / dof * (errors if errors > 0 else 1.0))
+    noise = math.sqrt(errors) if errors > 0 else local_noise_mag(data.mag)
+    if map_scatter > POOR_FIT_FACTOR * noise:  # a warning before minutes of sampling
+        log(
+            f"the best state found leaves {map_scatter:.3g} mag of scatter about a curve "
+            f"with {noise:.3g} mag of noise: the search has likely missed the tumble (give "
+            "both periods, or raise --starts); sampling it anyway"
+        )
     if np.all(data.mag_err == 0):  # χ² in units of the best mode's residual variance
         var = modes[0].chi2 / dof
         modes = [dataclasses.replace(m, chi2=m.chi2 / var) for m in modes]
@@ -190,6 +205,7 @@ def fit_tumble(
     rows = mode_rows(modes, runs, samples, best_chi2, TUMBLE_MC_NAMES, walkers, interval_summary)
     best = rows[0]
     iv = best["mcmc"]["intervals"]
+    scatter = math.sqrt(errors + iv["noise_mag"]["median"] ** 2)
     summary = {
         "attitude": "tumble",
         "precession_period_s": iv["precession_period_s"]["median"],
@@ -204,6 +220,11 @@ def fit_tumble(
         # χ² per degree of freedom of the best mode with the data's own errors (null
         # without errors): well above 1, the state is a local optimum or the shape is wrong.
         "reduced_chi2": best["chi2"] / dof if np.all(data.mag_err > 0) else None,
+        # The best tumble's scatter about the data (errors and excess noise) against the
+        # curve's own noise: far above it, the search missed the state.
+        "scatter_mag": scatter,
+        "data_noise_mag": noise,
+        "poor_fit": bool(scatter > POOR_FIT_FACTOR * noise),
         "intervals": iv,
         "map": {k: best[k] for k in ("inertia_ratios", "omega_body_rad_s", "quaternion")},
         "best_mode": best["mode"],
