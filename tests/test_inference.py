@@ -218,7 +218,8 @@ def test_failed_solves_are_counted_and_left_out(cubesat_case):
     infinite cost, counted in the report, and never becomes a mode."""
     from jaxlc.inference.data import fit_data
     from jaxlc.inference.model import spin_model, truth_theta
-    from jaxlc.inference.search import distinct_modes, least_squares
+    from jaxlc.inference.search import least_squares
+    from jaxlc.inference.search_starts import distinct_modes
 
     scene, geo, lc = cubesat_case
     data = fit_data(lc, geo).subset(np.arange(0, 600, 10))
@@ -235,26 +236,28 @@ def test_failed_solves_are_counted_and_left_out(cubesat_case):
 
 
 def test_refinement_keeps_the_best_optimum_of_every_period():
-    """Eight optima of one period (P/3 and its twins) ranked above the best optimum at
-    3P by the coarse model: the refined set (eight) still holds the 3P optimum and the
-    best of each other period, and is ordered by cost."""
-    from jaxlc.inference.search import refinement_set
+    """Ten optima of one period (P/3 and its twins) ranked above the best optima at 3P
+    and 2P by the coarse model: the refined set holds the eight best and, besides
+    them, the best of each other period (at most ``extra``), ordered by cost."""
+    from jaxlc.inference.search_starts import refinement_set
 
     def optimum(period_s, cost, pole):
         return (np.array([*pole, math.log(period_s), 0.0, 0.0]), cost, 1)
 
     rng = np.random.default_rng(0)
     third = [optimum(40.65, 1.0 + 0.01 * k, rng.normal(size=3)) for k in range(10)]
-    others = [optimum(121.94, 1.5, [0, 0, 1]), optimum(60.97, 1.7, [1, 0, 0])]
+    others = [
+        optimum(121.94, 1.5, [0, 0, 1]),
+        optimum(121.94, 1.6, [0, 1, 0]),  # a second 3P optimum: not a "best of"
+        optimum(81.3, 1.7, [1, 0, 0]),
+    ]
     candidates = sorted(third + others, key=lambda c: c[1])
-    chosen = refinement_set(candidates, 8)
-    periods = [round(math.exp(c[0][3]), 2) for c in chosen]
-    assert len(chosen) == 8 and {121.94, 60.97} <= set(periods)
-    assert periods.count(40.65) == 6 and chosen[0] is candidates[0]
-    assert [c[1] for c in chosen] == sorted(c[1] for c in chosen)
-    # distinct within 1 % in ln P: a second optimum of a period is not a "best of"
+    chosen = refinement_set(candidates, 8, 4)
+    assert [c[1] for c in chosen] == [c[1] for c in third[:8]] + [1.5, 1.7]
+    assert refinement_set(candidates, 8, 1) == [*third[:8], others[0]]
+    # distinct within 1 % in ln P: an optimum 0.5 % from a chosen period is not added
     near = optimum(40.65 * 1.005, 2.0, [0, 1, 0])
-    assert refinement_set([*third[:2], near], 2) == third[:2]
+    assert refinement_set([*third[:2], near], 2, 4) == third[:2]
 
 
 def test_fit_cli(cubesat_case, tmp_path, monkeypatch, capsys):

@@ -21,13 +21,14 @@ import numpy as np
 
 from jaxlc.errors import JaxlcError
 from jaxlc.inference.data import FitData, soft_clip
-from jaxlc.inference.model import (
-    N_LM,
-    SpinModel,
-    angle_between_deg,
-    pole_radec_deg,
-    spin_model,
-    to_device,
+from jaxlc.inference.model import N_LM, SpinModel, pole_radec_deg, spin_model, to_device
+from jaxlc.inference.search_starts import (
+    CANDIDATE_FACTOR,
+    EXTRA_PERIODS,
+    distinct_modes,
+    refinement_set,
+    reversed_starts,
+    start_points,
 )
 from jaxlc.scene import Scene
 from jaxlc.xla import filter_jit
@@ -200,37 +201,6 @@ def least_squares(
     return theta, cost, report
 
 
-def start_points(
-    seeds_period_s, n_starts: int, rng: np.random.Generator, period_jitter: float = 0.002
-) -> np.ndarray:
-    """(n_starts, 6) LM starts: isotropic poles, the seed periods in turn, uniform phases.
-
-    Δm starts at 0 and is set by :func:`match_offset` before solving.
-    """
-    seeds = np.asarray(seeds_period_s, np.float64)
-    pole = rng.normal(size=(n_starts, 3))
-    per = seeds[np.arange(n_starts) % len(seeds)] * np.exp(
-        period_jitter * rng.standard_normal(n_starts)
-    )
-    phase = rng.uniform(0, 2 * np.pi, n_starts)
-    return np.column_stack([pole, np.log(per), phase, np.zeros(n_starts)])
-
-
-def reversed_starts(thetas, n_starts: int, rng: np.random.Generator) -> np.ndarray:
-    """(n_starts, 6) starts about the poles of ``thetas`` (LM coordinates): half at the
-    reversed poles −u, half at the poles u themselves, each jittered by ~3°, with the
-    same period and phases spread uniformly (a body symmetric about its spin axis has
-    optima half a turn apart that a start must reach in phase)."""
-    base = np.asarray(thetas, np.float64)[np.arange(n_starts) % len(thetas)]
-    out = base.copy()
-    u = base[:, :3] / np.linalg.norm(base[:, :3], axis=1, keepdims=True)
-    sign = np.where(np.arange(n_starts) < (n_starts + 1) // 2, -1.0, 1.0)[:, None]
-    out[:, :3] = sign * u + 0.05 * rng.standard_normal((n_starts, 3))
-    out[:, 4] = rng.uniform(0, 2 * np.pi, n_starts)
-    out[:, 5] = 0.0
-    return out
-
-
 @filter_jit
 def _batch_magnitudes(model: SpinModel, thetas):
     return jax.vmap(model.magnitudes)(thetas)
@@ -265,62 +235,6 @@ def better_half_turn(model: SpinModel, data: FitData, thetas: np.ndarray) -> np.
     return np.where(take_twin[:, None], twins, thetas)
 
 
-def distinct_modes(
-    theta: np.ndarray,
-    cost: np.ndarray,
-    pole_tol_deg: float = 10.0,
-    period_tol: float = 0.01,
-    max_modes: int = 8,
-) -> list[tuple[np.ndarray, float, int]]:
-    """Greedy clustering of optima: (theta, cost, members) per mode, best first.
-
-    Two optima belong together when their poles are within ``pole_tol_deg`` and
-    their periods within a fraction ``period_tol``; failed solves (infinite
-    cost) are left out.
-    """
-    order = np.argsort(cost)
-    modes: list[list] = []
-    for k in order:
-        if not np.isfinite(cost[k]):
-            break
-        for m in modes:
-            same_pole = angle_between_deg(theta[k, :3], m[0][:3]) < pole_tol_deg
-            same_period = abs(theta[k, 3] - m[0][3]) < period_tol
-            if same_pole and same_period:
-                m[2] += 1
-                break
-        else:
-            if len(modes) < max_modes:
-                modes.append([theta[k], float(cost[k]), 1])
-    return [tuple(m) for m in modes]
-
-
-#: Distinct search optima kept for :func:`refinement_set`, per mode refined.
-CANDIDATE_FACTOR = 4
-
-
-def refinement_set(candidates: list, max_modes: int, period_tol: float = 0.01) -> list:
-    """Search optima (theta, cost, members; best first) to refine on the exact model or
-    to start the reversed solve from: the best of each distinct period (within
-    ``period_tol`` in ln P) first, then the others by cost, at most ``max_modes``,
-    best first.
-
-    The coarse search model can rank many optima of one wrong period (a third of the
-    spin, with its symmetric twins) above every optimum of the true period: in SBC
-    case 43 the reversed solve started only from P/3 optima, eight P/3 optima were
-    refined, and the fit answered P/3 with weight 1, where the truth fits better by
-    Δχ² 48. The reversed pole of the best 3P optimum leads to the truth.
-    """
-    firsts, rest, periods = [], [], []
-    for c in candidates:
-        if all(abs(c[0][3] - p) >= period_tol for p in periods):
-            periods.append(c[0][3])
-            firsts.append(c)
-        else:
-            rest.append(c)
-    return sorted((firsts + rest)[:max_modes], key=lambda c: c[1])
-
-
 def multistart(
     scene: Scene,
     data: FitData,
@@ -342,8 +256,9 @@ def multistart(
     only has to put starts into the right basins. A second solve of the same size starts
     at the reversed poles of the four best optima and at those poles themselves with
     phases spread over the turn (:func:`reversed_starts`), and at the best optimum of
-    each of four other periods (:func:`refinement_set`); ``max_modes`` distinct
-    optima of both, the best of each period first, are then refined on the
+    up to four other periods (:func:`refinement_set`); the ``max_modes`` best distinct
+    optima of both and the best of up to :data:`EXTRA_PERIODS` other periods are
+    then refined on the
     exact model (shadows, the render plan's sub-exposures for the shortest
     candidate period).
 
@@ -369,8 +284,8 @@ def multistart(
     # light curve, and a body symmetric about its axis has optima half a turn apart:
     # light curve: often as good, and often missed by random starts. A second
     # batched solve of the same size (no new compilation) starts there.
-    # Its bases: the four best optima and the best of each of four other periods.
-    bases = first[:4] + [c for c in refinement_set(first, 4) if all(c is not b for b in first[:4])]
+    # Its bases: the four best optima and the best of up to four other periods.
+    bases = refinement_set(first, 4, 4)
     rev = match_offset(coarse, sub, reversed_starts([c[0] for c in bases], n_starts, rng))
     theta2, cost2, r2 = least_squares(coarse, sub, rev, search_steps, "reversed")
     candidates = refinement_set(
@@ -380,6 +295,7 @@ def multistart(
             max_modes=CANDIDATE_FACTOR * max_modes,
         ),
         max_modes,
+        EXTRA_PERIODS,
     )
     log(r1.describe())
     log(r2.describe())
