@@ -258,9 +258,8 @@ def multistart(
     phases spread over the turn (:func:`reversed_starts`), and at the best optimum of
     up to four other periods (:func:`refinement_set`); the ``max_modes`` best distinct
     optima of both and the best of up to :data:`EXTRA_PERIODS` other periods are
-    then refined on the
-    exact model (shadows, the render plan's sub-exposures for the shortest
-    candidate period).
+    then refined on the exact model (shadows, the render plan's sub-exposures for
+    the shortest candidate period).
 
     Returns:
         Distinct modes on the exact model, best (lowest χ²) first, and the
