@@ -145,7 +145,7 @@ def test_period_chart_inverts_with_the_jacobian_of_its_inverse(inertia, omega, m
         def evaluate(self, x):
             return np.zeros(len(x)), np.zeros(len(x)), np.ones(len(x))
 
-    lp = ChartLogProb(Flat(), chart, centre)
+    lp = ChartLogProb(Flat(), chart)
     unreachable = y[:2].copy()
     unreachable[1, 3] = unreachable[1, 2] + 30.0  # T_ω e^30 × P_ψ
     got = lp(unreachable)

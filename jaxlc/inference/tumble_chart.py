@@ -76,19 +76,23 @@ def _to_chart(old, basis, ref, rate_ref):
 def _from_chart(y, basis, ref, rate_ref, s_start):
     target = y[2:4] + ref
     omega = lambda s: y[4] * basis[2] + s[0] * basis[0] + s[1] * basis[1]  # noqa: E731
-    residual = lambda s: ln_periods(y[0:2], omega(s), rate_ref)[0] - target  # noqa: E731
+
+    def residual(s):  # the residual twice (value and aux) and whether the motion has periods
+        lnp, ok = ln_periods(y[0:2], omega(s), rate_ref)
+        return lnp - target, (lnp - target, ok)
+
+    newton = jax.jacfwd(residual, has_aux=True)  # one trace: Jacobian, residual, ok
 
     def step(s, _):
-        f, jac = residual(s), jax.jacfwd(residual)(s)
+        jac, (f, _ok) = newton(s)
         ds = -jnp.linalg.solve(jac, f)
         scale = MAX_STEP * jnp.linalg.norm(omega(s)) / (jnp.linalg.norm(ds) + 1e-300)
         return s + ds * jnp.minimum(1.0, scale), None
 
     s, _ = jax.lax.scan(step, s_start, None, length=NEWTON_STEPS)
-    f, jac = residual(s), jax.jacfwd(residual)(s)
-    ok = jnp.all(jnp.abs(f) < NEWTON_TOL) & ln_periods(y[0:2], omega(s), rate_ref)[1]
+    jac, (f, ok) = newton(s)
     old = jnp.concatenate([y[0:2], omega(s), y[5:9]])
-    return old, -jnp.log(jnp.abs(jnp.linalg.det(jac))), ok
+    return old, -jnp.log(jnp.abs(jnp.linalg.det(jac))), ok & jnp.all(jnp.abs(f) < NEWTON_TOL)
 
 
 _to_chart_many = jax.jit(jax.vmap(_to_chart, in_axes=(0, None, None, None)))
@@ -131,7 +135,9 @@ class PeriodChart:
         self.basis = np.stack([n1, n2, np.cross(n1, n2)])
         self.ref = ref
         self.s_centre = self.basis[:2] @ w
-        if not self.from_chart(self.to_chart(centre[None]))[2][0]:
+        self.centre = centre
+        self.centre_y = self.to_chart(centre[None])[0]
+        if not self.from_chart(self.centre_y[None])[2][0]:
             raise ValueError("the period chart does not invert at its own centre")
 
     def _args(self):
@@ -162,11 +168,14 @@ class PeriodChart:
         with jax.enable_x64(True):
             return np.asarray(_chart_jacobian(_f64(old), *self._args()))
 
-    def ball(self, p0: np.ndarray, centre: np.ndarray, cov: np.ndarray):
-        """A Laplace ball in MCMC coordinates (walkers, centre, covariance) in the chart:
-        the walkers and centre mapped, the covariance J Σ Jᵀ."""
-        jac = self.jacobian(centre)
-        return self.to_chart(p0), self.to_chart(centre[None])[0], jac @ cov @ jac.T
+    def ball(self, p0: np.ndarray, cov: np.ndarray):
+        """A Laplace ball about the chart's centre in MCMC coordinates (walkers,
+        covariance) in the chart: the walkers mapped (a walker that does not map goes
+        to the centre), the centre and the covariance J Σ Jᵀ."""
+        jac = self.jacobian(self.centre)
+        y0 = self.to_chart(p0)
+        y0[~np.all(np.isfinite(y0), axis=1)] = self.centre_y
+        return y0, self.centre_y.copy(), jac @ cov @ jac.T
 
 
 class ChartLogProb(OffsetConditionals):
@@ -174,14 +183,14 @@ class ChartLogProb(OffsetConditionals):
     in the period chart: (W, 9) chart coordinates → (W,) ln density of y (−∞ where the
     inverse map fails); Δm's conditionals remembered at the chart points."""
 
-    def __init__(self, lp, chart: PeriodChart, centre: np.ndarray):
+    def __init__(self, lp, chart: PeriodChart):
         super().__init__(lp.offset_index)
-        self.lp, self.chart, self.centre = lp, chart, np.asarray(centre, np.float64)
+        self.lp, self.chart = lp, chart
 
     def __call__(self, y: np.ndarray) -> np.ndarray:
         y = np.ascontiguousarray(y, np.float64)
         old, log_jac, ok = self.chart.from_chart(y)
-        old[~ok] = self.centre  # a valid point, so the batch keeps its shape
+        old[~ok] = self.chart.centre  # a valid point, so the batch keeps its shape
         ll, d, sd = self.lp.evaluate(old)
         self.remember(y, d, sd)
         return np.where(ok, ll + log_jac, -np.inf)
@@ -195,10 +204,7 @@ def in_period_chart(lp, p0, centre, cov, rate_ref_rad_s: float, log=None):
     except ValueError as err:
         (log or (lambda msg: None))(f"  sampling in the plain coordinates: {err}")
         return lp, p0, centre, cov
-    y0, yc, ycov = chart.ball(p0, centre, cov)
-    bad = ~np.all(np.isfinite(y0), axis=1)
-    y0[bad] = yc
-    return ChartLogProb(lp, chart, centre), y0, yc, ycov
+    return ChartLogProb(lp, chart), *chart.ball(p0, cov)
 
 
 def plain_run(run: dict, lp) -> dict:
