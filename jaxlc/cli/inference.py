@@ -129,6 +129,13 @@ def fit(
     walkers: Annotated[int, typer.Option(help="emcee walkers (≥ 12).")] = 12,
     max_steps: Annotated[int, typer.Option(help="emcee step cap.")] = 6000,
     min_tau: Annotated[float, typer.Option(help="Chain length target in τ.")] = 50.0,
+    sampler: Annotated[
+        str,
+        typer.Option(
+            help="Spin fits: 'auto' importance-samples each mode's Laplace approximation "
+            "(emcee where it misses); 'emcee' runs emcee for every main mode."
+        ),
+    ] = "auto",
     mcmc_modes: Annotated[int, typer.Option(help="Modes sampled (within Δχ² < 10).")] = 4,
     period_s: Annotated[
         float | None, typer.Option(help="Seed period instead of the periodogram's.")
@@ -172,6 +179,7 @@ def fit(
         walkers=walkers,
         max_steps=max_steps,
         min_tau=min_tau,
+        sampler=sampler,
         mcmc_modes=mcmc_modes,
         period_s=period_s,
         min_period_s=min_period_s,
@@ -231,8 +239,7 @@ def fit(
         )
     err.print(
         f"{answer}, {len(result['modes'])} modes (best weight {result['best_weight']:.2f}); "
-        f"chain {d['chain_length_tau']:.0f} τ, acceptance "
-        f"{d['acceptance']:.2f}; {result['timings_s']['total_s']:.1f} s → {output}",
+        f"{sampler_line(d)}; {result['timings_s']['total_s']:.1f} s → {output}",
         highlight=False,
     )
     if (result.get("reduced_chi2") or 0.0) > POOR_FIT_CHI2:
@@ -255,3 +262,10 @@ def fit(
             f"warning: chain only {d['chain_length_tau']:.0f} τ long; raise --max-steps",
             style="yellow",
         )
+
+
+def sampler_line(d: dict) -> str:
+    """How the best mode was sampled, from a fit's ``diagnostics``."""
+    if d.get("method") == "importance":
+        return f"importance sampling, effective size {d['ess']:.0f} of {d['draws']}"
+    return f"chain {d['chain_length_tau']:.0f} τ, acceptance {d['acceptance']:.2f}"

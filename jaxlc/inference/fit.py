@@ -6,7 +6,8 @@ Output folder:
   ``phase_deg`` (at ``epoch_utc``), ``dmag``, ``noise_mag`` of the best mode
   (``best_mode``: the one of highest posterior weight, ``best_weight``)
   with 50 %/90 % intervals, the pole's credible radii, every mode found,
-  the periodogram, diagnostics (acceptance, τ, chain length in τ) and timings;
+  the periodogram, diagnostics (the sampler: ``method`` and its effective size
+  ``ess``, or emcee's acceptance, τ and chain length in τ) and timings;
 * ``samples.parquet`` — posterior samples of every sampled mode (user units),
   with ``weight`` (the mode's probability from its Laplace evidence, spread
   over its samples: weighted, the table is the mixture posterior);
@@ -187,10 +188,10 @@ def fit_spin(
             theta=modes[i].theta_lm,
             tolerance_mag=tolerance,
         )
-        stage = f"emcee mode {n + 1}/{len(sampled)} (P {modes[i].period_s:.4g} s)"
+        stage = f"sampling mode {n + 1}/{len(sampled)} (P {modes[i].period_s:.4g} s)"
         log(f"sampling mode {i} (Δχ² = {modes[i].chi2 - best_chi2:.1f})")
         try:
-            runs[i] = mcmc.run_emcee(
+            runs[i] = mcmc.sample_mode(
                 model,
                 data,
                 modes[i],
@@ -205,7 +206,7 @@ def fit_spin(
             continue
         runs[i]["report"] = {
             "method": runs[i]["method"],
-            **({"ess": runs[i]["ess"]} if "ess" in runs[i] else {}),
+            **({"ess": runs[i]["ess"], "draws": runs[i]["draws"]} if "ess" in runs[i] else {}),
             "instants_per_exposure": model.instants_per_exposure,
             "blur_tolerance_mag": tolerance,
         }
@@ -250,7 +251,8 @@ def fit_spin(
                 "chain_length_tau",
                 "converged",
             )
-        },
+        }
+        | {k: best["mcmc"][k] for k in ("method", "ess", "draws") if k in best["mcmc"]},
         "periodogram": period_info,
         "data": {"samples": data.n, "limit_mag": data.limit_mag},
         "solver": [dataclasses.asdict(r) for r in reports],

@@ -47,7 +47,13 @@ def t_log_pdf(x: np.ndarray, centre: np.ndarray, chol: np.ndarray, df: float) ->
 
 
 def importance_sample(
-    lp, centre: np.ndarray, cov: np.ndarray, draws: int, batch: int, rng: np.random.Generator
+    lp,
+    centre: np.ndarray,
+    cov: np.ndarray,
+    draws: int,
+    batch: int,
+    rng: np.random.Generator,
+    min_ess_fraction: float = MIN_ESS_FRACTION,
 ) -> dict:
     """Draws from the t proposal about a mode, weighted by the posterior ``lp``.
 
@@ -61,7 +67,7 @@ def importance_sample(
         dict with ``chain`` (draws / batch, batch, D): the draws resampled by
         weight (systematic resampling), their ``log_prob``, ``log_evidence``
         (ln of the mean weight), ``ess`` (effective sample size of the weights),
-        ``draws``, ``usable`` (ess ≥ :data:`MIN_ESS_FRACTION` × draws) and
+        ``draws``, ``usable`` (ess ≥ ``min_ess_fraction`` × draws) and
         ``seconds``; ``tau``, ``acceptance`` and ``chain_length_tau`` are NaN,
         ``steps`` the rows of ``chain``, ``burn`` 0 (the keys of an emcee run).
     """
@@ -81,7 +87,7 @@ def importance_sample(
         w = np.exp(log_w - np.max(log_w))
         cdf = np.cumsum(w / np.sum(w))
         keep = np.minimum(np.searchsorted(cdf, (rng.uniform() + np.arange(n)) / n), n - 1)
-    usable = bool(ess >= MIN_ESS_FRACTION * n)
+    usable = bool(ess >= min_ess_fraction * n)
     return {
         "chain": x[keep].reshape(n // batch, batch, d),
         "log_prob": log_p[keep].reshape(n // batch, batch),

@@ -13,9 +13,14 @@
    of an independence proposal (multivariate t fitted to the posterior in a
    short adaptation stage, :class:`IndependenceMove`) and emcee's
    differential-evolution move, run in blocks until the kept chain is ≥ 50
-   integrated autocorrelation times τ long (or ``max_steps``); a minor mode
-   (Δχ² ≥ 6) is importance-sampled from its Laplace approximation instead
-   (:mod:`jaxlc.inference.importance`), at a tenth of the cost;
+   integrated autocorrelation times τ long (or ``max_steps``). With the default
+   ``sampler="auto"`` every mode is first importance-sampled from its Laplace
+   approximation (:mod:`jaxlc.inference.importance`): a main mode with
+   ``main_draws`` draws, kept when their effective size is at least
+   :data:`MAIN_MIN_ESS_FRACTION` of them (the posterior is then near-Gaussian
+   and the weights correct the rest, at a quarter of emcee's evaluations), a
+   minor mode (Δχ² ≥ 6) with ``importance_draws``; emcee runs where the
+   proposal misses;
 4. summary (medians, 50 % and 90 % intervals, pole credible radii), samples
    (Parquet), a corner plot and the data with the fitted model.
 
@@ -35,7 +40,7 @@ import pandas as pd
 
 from jaxlc.errors import JaxlcError
 from jaxlc.inference.data import FitData
-from jaxlc.inference.importance import importance_sample, t_log_pdf
+from jaxlc.inference.importance import MIN_ESS_FRACTION, importance_sample, t_log_pdf
 from jaxlc.inference.laplace import (
     initial_ball,
     laplace_log_evidence,
@@ -50,6 +55,12 @@ from jaxlc.inference.model import (
 from jaxlc.inference.offset_marginal import OffsetConditionals, marginal_ball, with_offset
 from jaxlc.inference.search import Mode
 from jaxlc.inference.spin_posterior import DMAG_MC, MarginalLogProb
+
+#: The samplers of :class:`FitSettings`: importance sampling first ("auto") or emcee.
+SAMPLERS = ("auto", "emcee")
+#: Least effective sample size, as a fraction of the draws, for which a main mode's
+#: importance sampling stands (a minor mode's: ``importance.MIN_ESS_FRACTION``).
+MAIN_MIN_ESS_FRACTION = 0.5
 
 
 @dataclasses.dataclass(frozen=True)
@@ -68,7 +79,9 @@ class FitSettings:
     mcmc_modes: int = 4
     mode_delta_chi2: float = 10.0
     importance_delta_chi2: float = 6.0  # modes this far above the best: importance-sampled
-    importance_draws: int = 240
+    importance_draws: int = 120
+    sampler: str = "auto"  # "auto": importance sampling first, emcee where it misses
+    main_draws: int = 360  # importance draws of a main mode (Δχ² < importance_delta_chi2)
     seed: int = 0
     period_s: float | None = None  # skip the periodogram: seed from this period
     body_period_s: float | None = None  # a tumble's T_ω (with period_s its P_ψ)
@@ -86,6 +99,10 @@ class FitSettings:
             raise JaxlcError(
                 f"importance_draws = {self.importance_draws} must be ≥ walkers = {self.walkers}"
             )
+        if self.sampler not in SAMPLERS:
+            raise JaxlcError(f"sampler = {self.sampler!r}: give one of {', '.join(SAMPLERS)}")
+        if self.main_draws < self.walkers:
+            raise JaxlcError(f"main_draws = {self.main_draws} must be ≥ walkers = {self.walkers}")
         if self.adapt_steps < 10:
             raise JaxlcError(f"adapt_steps = {self.adapt_steps} must be ≥ 10")
 
@@ -138,7 +155,7 @@ def _sample_cov(x: np.ndarray, fallback: np.ndarray) -> tuple[np.ndarray, np.nda
     return mean, cov
 
 
-def run_emcee(
+def sample_mode(
     model: SpinModel,
     data: FitData,
     mode: Mode,
@@ -148,24 +165,29 @@ def run_emcee(
     progress=None,
     importance: bool = False,
 ) -> dict:
-    """Sample around one mode until the kept chain is ≥ ``min_tau`` τ long (or ``max_steps``);
-    ``log(str)`` gets a line per stage, ``progress(steps, max_steps, length_tau)`` each block.
+    """Sample the posterior around one mode; ``log(str)`` gets a line per stage,
+    ``progress(steps, max_steps, length_tau)`` each emcee block.
 
-    Two stages: an adaptation stage of ``adapt_steps`` steps from the Laplace
-    ball with the Laplace proposal (:class:`IndependenceMove` + DE), discarded;
-    then the proposal refitted to the adaptation stage after its first sixth, fixed, and
-    blocks of ``block_steps`` until the kept chain (all of stage two) is long
-    enough. τ is estimated on the kept chain only. With ``importance`` (a minor
-    mode) the Laplace approximation is importance-sampled instead
-    (:func:`jaxlc.inference.importance.importance_sample`, ``importance_draws``
-    draws), and emcee runs only when those weights are unusable.
+    With ``settings.sampler == "auto"`` (or ``importance``: a minor mode) the
+    Laplace approximation is first importance-sampled
+    (:func:`jaxlc.inference.importance.importance_sample`): ``main_draws`` draws
+    kept when their effective size is ≥ :data:`MAIN_MIN_ESS_FRACTION` of them, or
+    for a minor mode ``importance_draws`` and
+    :data:`~jaxlc.inference.importance.MIN_ESS_FRACTION`. Otherwise (or when
+    those weights fall short) emcee (:func:`sample_posterior`): an adaptation stage of
+    ``adapt_steps`` steps from the Laplace ball with the Laplace proposal
+    (:class:`IndependenceMove` + DE), discarded; then the proposal refitted to
+    the adaptation stage after its first sixth, fixed, and blocks of
+    ``block_steps`` until the kept chain (all of stage two) is ≥ ``min_tau`` τ
+    long (or ``max_steps``), τ estimated on the kept chain only.
 
     Returns:
         dict with ``chain`` (steps, walkers, 6), ``log_prob`` (steps, walkers),
-        ``log_evidence`` (:func:`laplace_log_evidence`),
-        ``tau`` (6,), ``steps`` (kept), ``burn`` (discarded), ``acceptance``,
-        ``chain_length_tau``, ``converged``, ``seconds``, ``method``
-        (``"emcee"`` or ``"importance"``, then with ``ess``).
+        ``log_evidence`` (emcee: :func:`laplace_log_evidence`; importance: the
+        mean weight), ``tau`` (6,), ``steps`` (kept), ``burn`` (discarded),
+        ``acceptance``, ``chain_length_tau``, ``converged``, ``seconds``,
+        ``method`` (``"emcee"`` or ``"importance"``, then with ``ess`` and
+        ``draws``; τ, acceptance and length NaN).
     """
     log = log or (lambda msg: None)
     lp = MarginalLogProb(model, data, float(mode.theta_lm[3]))
@@ -177,8 +199,10 @@ def run_emcee(
             f"emcee: the mode at P = {mode.period_s:.6g} s has zero prior density "
             "(noise or Δm at a bound)"
         )
-    if importance:
-        run = importance_sample(lp, centre, cov, settings.importance_draws, settings.walkers, rng)
+    if importance or settings.sampler == "auto":
+        draws = settings.importance_draws if importance else settings.main_draws
+        need = MIN_ESS_FRACTION if importance else MAIN_MIN_ESS_FRACTION
+        run = importance_sample(lp, centre, cov, draws, settings.walkers, rng, need)
         log(f"  importance sampling: {run['draws']} draws, effective size {run['ess']:.0f}")
         if run["usable"]:
             return {**full_coordinates(run, lp, rng), "method": "importance"}
@@ -224,7 +248,7 @@ def sample_posterior(
 ) -> dict:
     """emcee from walkers ``p0`` (W, D) in a mode's Laplace ball (``centre``, ``cov``)
     with the vectorised log-posterior ``lp`` ((W, D) → (W,)): the two stages of
-    :func:`run_emcee`, for any fit model's coordinates (D = ``p0.shape[1]``)."""
+    :func:`sample_mode`, for any fit model's coordinates (D = ``p0.shape[1]``)."""
     import emcee
 
     log = log or (lambda msg: None)
