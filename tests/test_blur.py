@@ -147,6 +147,64 @@ def test_nested_midpoint_refinement_against_an_analytic_integral():
     assert r.exposures.weight.sum() == pytest.approx(n)
 
 
+def test_least_levels_against_an_analytic_integral():
+    """A fit's model keeps the least level that is resolved and close to the refined
+    mean: a slow sinusoid with a narrow glint and a glint straddled by chance, every
+    exposure within the tolerance of the exact integral (erf), the smooth ones at one
+    or three instants, the glints refined, and fewer instants than the usual rule."""
+    from math import erf, sqrt
+
+    from jaxlc.rendering.adaptive import Curve, refine
+    from jaxlc.rendering.observation import GeometryArrays
+
+    n, sigma, period = 40, 0.03, 15.0
+    centres = (17.3, 25.5)  # off-centre, and on the one instant of level 0
+
+    def f(t):
+        glints = sum(50.0 * np.exp(-0.5 * ((t - c) / sigma) ** 2) for c in centres)
+        return 1.0 + 0.3 * np.sin(2 * np.pi * t / period) + glints
+
+    def exact(a, b):
+        g = sqrt(2.0) * sigma
+        smooth = (b - a) - 0.3 * period / (2 * np.pi) * (
+            np.cos(2 * np.pi * b / period) - np.cos(2 * np.pi * a / period)
+        )
+        return smooth + sum(
+            50.0 * sigma * sqrt(np.pi / 2) * (erf((b - c) / g) - erf((a - c) / g)) for c in centres
+        )
+
+    ones = np.tile([1.0, 0.0, 0.0], (n, 1))
+    geo = GeometryArrays(
+        **{
+            **{k: None for k in GeometryArrays.__dataclass_fields__},
+            "t_start_s": np.arange(n, dtype=float),
+            "exposure_s": np.ones(n),
+            "sun_dir": ones,
+            "obs_dir": ones,
+        }
+    )
+    truth = np.array([exact(a, a + 1.0) for a in geo.t_start_s])
+    runs = {}
+    for least in (False, True):
+        (r,) = refine(
+            [Curve(geo, np.arange(n), 0.0, first_level=2 + least)],
+            lambda probes: [f(p.t_s) for p in probes],
+            tolerance_mag=1e-3,
+            max_level=6,
+            least_levels=least,
+        )
+        assert np.all(np.abs(2.5 * np.log10(r.intensity / truth)) < 1e-3)
+        # the instants given are those of the levels reported
+        e = r.exposures
+        assert np.allclose(np.bincount(e.row, f(e.t_s) * e.weight, minlength=n), r.intensity)
+        runs[least] = r
+    r = runs[True]
+    assert r.level[17] >= 4 and r.level[25] >= 4
+    smooth = np.setdiff1d(np.arange(n), [16, 17, 18, 24, 25, 26])
+    assert np.all(r.level[smooth] <= 1)
+    assert np.all(runs[False].level[smooth] == 2) and r.instants < runs[False].instants
+
+
 def test_slow_spin_needs_one_subexposure_and_equals_no_blur(write_scene):
     """S3's cylinder tumbling once an hour, over a slow pass: blur skipped, exactly."""
     text = (SCENES / "s3_cylinder.toml").read_text().replace('"../meshes/', '"@MESHES@/')

@@ -179,6 +179,7 @@ def spin_model(
     floor: bool = True,
     theta=None,
     tolerance_mag: float | None = None,
+    least_levels: bool = True,
 ) -> SpinModel:
     """The fit model of a scene over ``data``: exact (its facets, its shadows) or coarse.
 
@@ -198,12 +199,14 @@ def spin_model(
         theta: (6,) host LM coordinates of a spin: where the render plan asks for
             adaptive sub-exposures, they are chosen for this spin
             (:func:`jaxlc.rendering.prepare.adapt`, as :func:`jaxlc.render`
-            chooses them for a scene's spin) and kept for every θ the model is
+            chooses them for a scene's spin, then each exposure at its least level
+            within tolerance: ``least_levels``) and kept for every θ the model is
             evaluated at (the MCMC around one mode). Without it the exposures
             get the plan's fixed count for the trial period (the search and
             the refinement).
         tolerance_mag: the adaptive sub-exposures' tolerance instead of the
             scene's ``blur_tolerance_mag`` (the fit ties it to the data's noise).
+        least_levels: False: ``theta``'s instants exactly as render's (no least level).
     """
     period_ref = float(np.float32(period_s))  # exactly the device's reference
     trial = scene.with_spin(period_ref, epoch_utc=data.epoch_utc)
@@ -224,7 +227,8 @@ def spin_model(
         return model
     t = to_device(model, theta)
     obj = eqx.tree_at(lambda o: o.attitude, prep.object, model.attitude(t[:3], t[3], t[4]))
-    adapted = adapt([dataclasses.replace(prep, object=obj)], evaluate_instants)[0]
+    at_mode = dataclasses.replace(prep, object=obj)
+    adapted = adapt([at_mode], evaluate_instants, least_levels=least_levels)[0]
     return dataclasses.replace(model, inputs=adapted.inputs, adapted=True)
 
 

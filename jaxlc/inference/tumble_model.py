@@ -170,6 +170,7 @@ def tumble_model(
     directions: int = 128,
     max_subsamples: int | None = None,
     adapted: bool = False,
+    least_levels: bool = True,
 ) -> TumbleModel:
     """The tumble fit model of a scene over ``data``: exact (facets, shadows) or coarse.
 
@@ -183,14 +184,15 @@ def tumble_model(
         exact, directions, max_subsamples: as for
             :func:`~jaxlc.inference.model.spin_model` (False: the search model).
         adapted: where the render plan asks for adaptive sub-exposures, choose them
-            for ``theta_plan``'s state as :func:`jaxlc.render` would (the MCMC
-            model about one mode); otherwise the plan's fixed count.
+            for ``theta_plan``'s state as :func:`jaxlc.render` would, each exposure
+            then at its least level within tolerance unless ``least_levels`` is False
+            (the MCMC model about one mode); otherwise the plan's fixed count.
     """
     inertia, omega, q = state_of(theta_plan, rate_ref_rad_s)
     trial = scene.with_tumble(inertia, omega, q, epoch_utc=data.epoch_utc)
     prep = fit_preparation(trial, data, exact, directions, max_subsamples)
     if adapted and prep.adaptive:
-        prep = adapt([prep], evaluate_instants)[0]
+        prep = adapt([prep], evaluate_instants, least_levels=least_levels)[0]
     inputs = kernel_inputs(prep.object.attitude, prep.exposures, prep.precision, {"seconds": True})
     f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
     return TumbleModel(

@@ -41,6 +41,9 @@ from jaxlc.rendering.observation import GeometryArrays
 
 #: Fraction of a curve's median flux below which errors are held absolute (10 mag).
 FLOOR_FRACTION = 1e-4
+#: Share of the tolerance within which a coarser level must match the refined mean
+#: (:func:`least_level`).
+LEAST_LEVEL_MARGIN = 0.7
 #: Relative flux error per magnitude of error (d mag = 1.0857 dF/F).
 MAG_PER_REL = 2.5 / math.log(10.0)
 
@@ -93,7 +96,13 @@ class Refinement:
         return f"{self.instants / n:.2f} instants per exposure (instants: exposures — {parts}{cap})"
 
 
-def refine(curves: list[Curve], evaluate, tolerance_mag: float = 1e-3, max_level: int = 4):
+def refine(
+    curves: list[Curve],
+    evaluate,
+    tolerance_mag: float = 1e-3,
+    max_level: int = 4,
+    least_levels: bool = False,
+):
     """Refine every exposure of every curve until its estimated error is within tolerance.
 
     Args:
@@ -102,6 +111,10 @@ def refine(curves: list[Curve], evaluate, tolerance_mag: float = 1e-3, max_level
             instant its own row) → list of (M_c,) I/E at those instants.
         tolerance_mag: the magnitude error allowed per exposure.
         max_level: the last level (3^max_level instants per exposure).
+        least_levels: then give each exposure the least level (down to one
+            instant) whose mean is within tolerance of the refined one
+            (:func:`least_levels`): for a model evaluated many times at nearly
+            one state (a fit's mode), where this one-off work pays.
 
     Returns:
         One :class:`Refinement` per curve.
@@ -109,6 +122,9 @@ def refine(curves: list[Curve], evaluate, tolerance_mag: float = 1e-3, max_level
     tol = tolerance_mag / MAG_PER_REL
     probes = [probe_instants(c.geo, c.rows, [0.5], c.t0_s) for c in curves]
     mean = [np.array(v, np.float64) for v in evaluate(probes)]  # own, writable copies
+    by_level = [np.full((len(m), max_level + 1), np.nan) for m in mean]
+    for b, m in zip(by_level, mean, strict=True):
+        b[:, 0] = m
     level = [np.zeros(len(c.rows), np.int64) for c in curves]
     error = [np.zeros(len(c.rows)) for c in curves]
     floor = []
@@ -134,8 +150,14 @@ def refine(curves: list[Curve], evaluate, tolerance_mag: float = 1e-3, max_level
             m = (old * 3 ** (k - 1) + added) / 3**k
             err = np.abs(m - old) / 8.0
             mean[i][t], level[i][t], error[i][t] = m, k, err
+            by_level[i][t, k] = m
             done = (k >= c.first_level) & (err <= tol * np.maximum(m, floor[i]))
             active[i][t[done]] = False
+    if least_levels:
+        for i, a in enumerate(active):
+            done = np.flatnonzero(~a & (level[i] > 0))
+            lv, m, e = least_level(by_level[i][done], level[i][done], error[i][done], tol, floor[i])
+            level[i][done], mean[i][done], error[i][done] = lv, m, e
     out = []
     for c, m, lv, e, a in zip(curves, mean, level, error, active, strict=True):
         out.append(
@@ -148,6 +170,41 @@ def refine(curves: list[Curve], evaluate, tolerance_mag: float = 1e-3, max_level
             )
         )
     return out
+
+
+def least_level(by_level: np.ndarray, level: np.ndarray, error: np.ndarray, tol: float, floor):
+    """The least level of each exposure that is resolved and close to its refined mean.
+
+    Level l qualifies when (a) the usual estimate calls it resolved, |M_l − M_{l−1}|/8
+    within tolerance (level 0: |M_1 − M_0|), and (b) it is within
+    :data:`LEAST_LEVEL_MARGIN` of the tolerance of the last level's mean, counting that
+    mean's own estimated error. (a) keeps a glint that a coarse level straddles by
+    chance, level with the refined mean at the mode only, at its refined level (the
+    CubeSat: 6.8 mmag at states 0.06° off the mode without it, 0.6 with it); the
+    margin keeps states near the mode within tolerance (S4: 3.4 mmag at margin 1).
+
+    Args:
+        by_level: (N, L) nested-midpoint means of each exposure at levels 0 … L − 1
+            (NaN above the exposure's last level).
+        level: (N,) the last level, where the estimated error met the tolerance.
+        error: (N,) that estimated error (I/E).
+        tol: relative tolerance; floor: the absolute floor of its scale (I/E).
+
+    Returns:
+        (N,) levels, (N,) their means and (N,) error bounds |M_l − M_last| + error.
+    """
+    rows = np.arange(len(level))
+    ref = by_level[rows, level]
+    bound = np.abs(by_level - ref[:, None]) + error[:, None]
+    scale = tol * np.maximum(ref, floor)[:, None]
+    est = np.full_like(by_level, np.inf)
+    est[:, 1:] = np.abs(np.diff(by_level, axis=1)) / 8.0
+    if by_level.shape[1] > 1:
+        est[:, 0] = np.abs(by_level[:, 1] - by_level[:, 0])
+    ok = (bound <= LEAST_LEVEL_MARGIN * scale) & (est <= scale)  # NaN compares False
+    ok[rows, level] = True
+    least = np.argmax(ok, axis=1)
+    return least, by_level[rows, least], bound[rows, least]
 
 
 def first_level_for(sweep_rad: float, scale_rad: float) -> int:

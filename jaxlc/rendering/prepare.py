@@ -341,7 +341,9 @@ def probe_inputs(prepared: Prepared, probe: Exposures, pad: bool = True) -> Kern
     )
 
 
-def adapt(prepared: list[Prepared], evaluate, pad_rows: bool = False) -> list[Prepared]:
+def adapt(
+    prepared: list[Prepared], evaluate, pad_rows: bool = False, least_levels: bool = False
+) -> list[Prepared]:
     """The adaptive sub-exposures (:mod:`jaxlc.rendering.adaptive`) of curves whose plan asks
     for them; the others are returned as they are.
 
@@ -350,6 +352,8 @@ def adapt(prepared: list[Prepared], evaluate, pad_rows: bool = False) -> list[Pr
         evaluate: callable(list of (Prepared, probe :class:`Exposures`)) → list of
             (M,) I/E at the probes' instants (see :func:`probe_inputs`).
         pad_rows: pad the new kernel inputs to :func:`bucket_size` rows.
+        least_levels: refine from one level finer than usual, then give each exposure
+            its least level within tolerance (``refine``'s option; a fit's model).
     """
     todo = [i for i, p in enumerate(prepared) if p.adaptive and p.exposures.n_rows]
     if not todo:
@@ -367,7 +371,8 @@ def adapt(prepared: list[Prepared], evaluate, pad_rows: bool = False) -> list[Pr
             prepared[i].t0_s,
             min(
                 last,
-                first_level_for(prepared[i].plan.blur.sweep_rad, prepared[i].plan.blur.scale_rad),
+                first_level_for(prepared[i].plan.blur.sweep_rad, prepared[i].plan.blur.scale_rad)
+                + int(least_levels),
             ),
         )
         for i in todo
@@ -377,6 +382,7 @@ def adapt(prepared: list[Prepared], evaluate, pad_rows: bool = False) -> list[Pr
         lambda probes: evaluate([(prepared[i], p) for i, p in zip(todo, probes, strict=True)]),
         next(iter(tol)),
         last,
+        least_levels,
     )
     out = list(prepared)
     for i, r in zip(todo, found, strict=True):
