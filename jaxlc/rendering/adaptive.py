@@ -113,7 +113,7 @@ def refine(
         max_level: the last level (3^max_level instants per exposure).
         least_levels: then give each exposure the least level (down to one
             instant) whose mean is within tolerance of the refined one
-            (:func:`least_levels`): for a model evaluated many times at nearly
+            (:func:`least_level`): for a model evaluated many times at nearly
             one state (a fit's mode), where this one-off work pays.
 
     Returns:
