@@ -217,6 +217,28 @@ def test_fit_recovers_spin_state(cubesat_case, tmp_path):
         assert (tmp_path / f).stat().st_size > 0
 
 
+def test_refinement_stops_when_stalled_at_the_same_optimum(cubesat_case):
+    """The refinement's LM stops after STALL_STEPS rejected steps (float32 residuals
+    never meet optimistix's own test, so every solve used to run to max_steps): the
+    same optima as the solver without the stop, to 1e-3 of the cost."""
+    from jaxlc.inference.data import fit_data
+    from jaxlc.inference.model import spin_model, truth_theta
+    from jaxlc.inference.search import least_squares
+
+    scene, geo, lc = cubesat_case
+    data = fit_data(lc, geo, default_exposure_s=scene.exposure_s)
+    truth = truth_theta(scene, data)
+    rng = np.random.default_rng(2)
+    starts = truth + rng.normal(size=(4, 6)) * np.array([0.01, 0.01, 0.01, 2e-5, 0.02, 0.02])
+    model = spin_model(scene, data, scene.attitude.period_s)
+    plain = least_squares(model, data, starts, 12, "refine")
+    stalled = least_squares(model, data, starts, 12, "refine", stall=True)
+    assert plain[2].converged == 0 and plain[2].max_steps == 4  # the old behaviour
+    assert stalled[2].converged == 4
+    np.testing.assert_allclose(stalled[1], plain[1], rtol=1e-3)
+    np.testing.assert_allclose(stalled[0][:, 3], plain[0][:, 3], atol=1e-6)  # ln P
+
+
 def test_fit_refuses_a_curve_that_does_not_vary(cubesat_case):
     """A constant light curve has no spin to fit: one clear error, before any solve."""
     from jaxlc.inference.fit import fit_spin
