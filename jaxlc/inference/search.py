@@ -144,6 +144,8 @@ def stalling_lm():
     once at the optimum every step is rejected (the cost cannot fall) until
     ``max_steps``. S4's refinement spent half its 12 steps so; six S5 SBC cases and S4
     give the same near-best optima (Δχ² < 10, to 0.01) with the stop, 1.4–5× sooner.
+    The tumble's refinement does not use it: there the stop moved the cylinder round
+    trip's P_ψ interval off the truth (p05 47.9815 s, truth 47.9752 s).
     """
     import optimistix as optx
 

@@ -356,7 +356,7 @@ def tumble_multistart(
     members += [0] * len(twins)  # started from no search solve
     plan = init[np.argmax(np.linalg.norm(init[:, 2:5], axis=1))]
     exact = tumble_model(scene, data, plan, rate_ref_rad_s, exact=True)
-    refined, rcost, r2 = least_squares(exact, data, init, refine_steps, "refine", stall=True)
+    refined, rcost, r2 = least_squares(exact, data, init, refine_steps, "refine")
     log(r2.describe())
     no_errors = np.all(data.mag_err == 0)
     # Refinement can land two starts (a state and its twin) on one optimum: merge again.
