@@ -202,7 +202,7 @@ def least_squares(
         starts: (K, P) LM host coordinates of ``model`` (P = 6 for a spin).
         max_steps: LM iterations (all starts run this many under ``vmap``).
         stall: stop a solve after :data:`STALL_STEPS` rejected steps in a row
-            (:func:`stalling_lm`; the refinements, not the search's short solves).
+            (:func:`stalling_lm`; the spin refinement, not the search's short solves).
 
     Returns:
         (K, P) optima, (K,) their sums of squared residuals (weights 1/σ with
