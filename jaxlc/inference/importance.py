@@ -1,15 +1,15 @@
-"""Importance sampling of a minor posterior mode from its Laplace approximation.
+"""Importance sampling of a posterior mode from its Laplace approximation.
 
-A mode well above the best one (Δχ² ≥ ``FitSettings.importance_delta_chi2``)
-holds a few per cent of the posterior at most, yet an emcee run around it
-costs as much as one around the best mode (S4: ~110 s of a 170 s fit). Its
-samples are drawn instead from the multivariate t (ν = 8) of its Laplace
-approximation — the proposal the main chains use — and weighted by posterior
-over proposal. The weights give the mode's evidence Z (their mean: an
-unbiased estimate, where the Laplace formula of the sampled modes is exact
-only for a Gaussian) and, resampled, an unweighted sample of the mode.
-When the proposal fits the mode badly (an effective sample size below
-:data:`MIN_ESS_FRACTION` of the draws) the caller samples it with emcee.
+The samples are drawn from the multivariate t (ν = 8) of the mode's Laplace
+approximation — the proposal emcee's main chains use — and weighted by
+posterior over proposal. The weights give the mode's evidence Z (their mean: an
+unbiased estimate, where the Laplace formula of emcee's modes is exact only for
+a Gaussian) and, resampled, an unweighted sample of the mode. A minor mode
+(Δχ² ≥ ``FitSettings.importance_delta_chi2``) is always sampled so, and a
+main mode first (``FitSettings.sampler = "auto"``: S4's best mode, 265 effective
+draws of 360 where emcee took 1,560 evaluations). When the proposal fits the
+mode badly (an effective sample size below ``min_ess_fraction`` of the draws:
+:data:`MIN_ESS_FRACTION` for a minor mode) the caller samples it with emcee.
 
 Example:
     >>> run = importance_sample(lp, centre, cov, draws=240, batch=12, rng=rng)

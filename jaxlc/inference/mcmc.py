@@ -65,7 +65,8 @@ MAIN_MIN_ESS_FRACTION = 0.5
 
 @dataclasses.dataclass(frozen=True)
 class FitSettings:
-    """Knobs of :func:`fit_spin` (defaults meet the issue's ≥ 1,000 starts and ≥ 50 τ)."""
+    """Knobs of :func:`fit_spin` (≥ 1,000 starts; an emcee chain runs to ≥ 50 τ, an
+    importance-sampled main mode needs an effective size ≥ half its draws)."""
 
     n_starts: int = 1024
     search_samples: int = 64

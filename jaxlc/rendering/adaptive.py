@@ -122,9 +122,10 @@ def refine(
     tol = tolerance_mag / MAG_PER_REL
     probes = [probe_instants(c.geo, c.rows, [0.5], c.t0_s) for c in curves]
     mean = [np.array(v, np.float64) for v in evaluate(probes)]  # own, writable copies
-    by_level = [np.full((len(m), max_level + 1), np.nan) for m in mean]
-    for b, m in zip(by_level, mean, strict=True):
-        b[:, 0] = m
+    # every level's means (NaN until reached), kept only for the least-level choice
+    by_level = []
+    if least_levels:
+        by_level = [np.column_stack([m, np.full((len(m), max_level), np.nan)]) for m in mean]
     level = [np.zeros(len(c.rows), np.int64) for c in curves]
     error = [np.zeros(len(c.rows)) for c in curves]
     floor = []
@@ -150,7 +151,8 @@ def refine(
             m = (old * 3 ** (k - 1) + added) / 3**k
             err = np.abs(m - old) / 8.0
             mean[i][t], level[i][t], error[i][t] = m, k, err
-            by_level[i][t, k] = m
+            if least_levels:
+                by_level[i][t, k] = m
             done = (k >= c.first_level) & (err <= tol * np.maximum(m, floor[i]))
             active[i][t[done]] = False
     if least_levels:
