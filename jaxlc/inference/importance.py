@@ -54,20 +54,26 @@ def importance_sample(
     batch: int,
     rng: np.random.Generator,
     min_ess_fraction: float = MIN_ESS_FRACTION,
+    min_draws: int | None = None,
 ) -> dict:
     """Draws from the t proposal about a mode, weighted by the posterior ``lp``.
 
     Args:
         lp: vectorised log posterior, (batch, D) → (batch,) (−inf outside the prior).
         centre: (D,) the mode's centre; cov: (D, D) its Laplace covariance.
-        draws: proposals (rounded up to a multiple of ``batch``).
+        draws: most proposals (rounded up to a multiple of ``batch``).
         batch: points per call of ``lp`` (the shape it was compiled for).
+        min_ess_fraction: the run is usable when its effective size reaches this
+            fraction of ``draws``.
+        min_draws: stop early, after at least this many proposals, once the effective
+            size reaches that target (the usable run's quality is the same, with fewer
+            posterior evaluations where the proposal fits well); None: all ``draws``.
 
     Returns:
         dict with ``chain`` (draws / batch, batch, D): the draws resampled by
         weight (systematic resampling), their ``log_prob``, ``log_evidence``
         (ln of the mean weight), ``ess`` (effective sample size of the weights),
-        ``draws``, ``usable`` (ess ≥ ``min_ess_fraction`` × draws) and
+        ``draws`` (evaluated), ``usable`` (ess ≥ ``min_ess_fraction`` × ``draws`` asked) and
         ``seconds``; ``tau``, ``acceptance`` and ``chain_length_tau`` are NaN,
         ``steps`` the rows of ``chain``, ``burn`` 0 (the keys of an emcee run).
     """
@@ -77,17 +83,28 @@ def importance_sample(
     chol = np.linalg.cholesky(cov * INFLATE**2)
     scale = np.sqrt(DF / rng.chisquare(DF, size=n))
     x = centre + (rng.standard_normal((n, d)) @ chol.T) * scale[:, None]
-    log_p = np.concatenate([lp(x[k : k + batch]) for k in range(0, n, batch)])
-    log_w = np.where(np.isfinite(log_p), log_p - t_log_pdf(x, centre, chol, DF), -np.inf)
+    log_q = t_log_pdf(x, centre, chol, DF)
+    target = min_ess_fraction * n
+    first = n if min_draws is None else min(n, -(-min_draws // batch) * batch)
+    parts: list[np.ndarray] = []
+    for k in range(0, n, batch):
+        parts.append(lp(x[k : k + batch]))
+        done = k + batch
+        if first <= done < n and effective_size(_log_weights(parts, log_q)) >= target:
+            break
+    log_p = np.concatenate(parts)
+    n = len(log_p)
+    x = x[:n]
+    log_w = _log_weights(parts, log_q)
     if not np.any(np.isfinite(log_w)):
         log_z, ess, keep = -math.inf, 0.0, np.zeros(n, int)
     else:
         log_z = float(logsumexp(log_w) - math.log(n))
-        ess = float(math.exp(2 * logsumexp(log_w) - logsumexp(2 * log_w)))
+        ess = effective_size(log_w)
         w = np.exp(log_w - np.max(log_w))
         cdf = np.cumsum(w / np.sum(w))
         keep = np.minimum(np.searchsorted(cdf, (rng.uniform() + np.arange(n)) / n), n - 1)
-    usable = bool(ess >= min_ess_fraction * n)
+    usable = bool(ess >= target)
     return {
         "chain": x[keep].reshape(n // batch, batch, d),
         "log_prob": log_p[keep].reshape(n // batch, batch),
@@ -103,3 +120,16 @@ def importance_sample(
         "converged": usable,
         "seconds": time.perf_counter() - t0,
     }
+
+
+def _log_weights(log_p_parts: list[np.ndarray], log_q: np.ndarray) -> np.ndarray:
+    """ln(posterior / proposal) of the draws evaluated so far (−inf outside the prior)."""
+    log_p = np.concatenate(log_p_parts)
+    return np.where(np.isfinite(log_p), log_p - log_q[: len(log_p)], -np.inf)
+
+
+def effective_size(log_w: np.ndarray) -> float:
+    """Kish's effective sample size (Σw)²/Σw² of log weights (0 when none is finite)."""
+    if not np.any(np.isfinite(log_w)):
+        return 0.0
+    return float(math.exp(2 * logsumexp(log_w) - logsumexp(2 * log_w)))

@@ -61,6 +61,9 @@ SAMPLERS = ("auto", "emcee")
 #: Least effective sample size, as a fraction of the draws, for which a main mode's
 #: importance sampling stands (a minor mode's: ``importance.MIN_ESS_FRACTION``).
 MAIN_MIN_ESS_FRACTION = 0.5
+#: Importance sampling stops once that effective size is reached, after at least this
+#: fraction of the draws (S4's main mode: 264 of 360 draws at an ESS fraction of 0.74).
+MIN_DRAWS_FRACTION = 0.5
 
 
 @dataclasses.dataclass(frozen=True)
@@ -174,7 +177,9 @@ def sample_mode(
     (:func:`jaxlc.inference.importance.importance_sample`): ``main_draws`` draws
     kept when their effective size is ≥ :data:`MAIN_MIN_ESS_FRACTION` of them, or
     for a minor mode ``importance_draws`` and
-    :data:`~jaxlc.inference.importance.MIN_ESS_FRACTION`. Otherwise (or when
+    :data:`~jaxlc.inference.importance.MIN_ESS_FRACTION` (drawing stops once that
+    effective size is reached, after at least :data:`MIN_DRAWS_FRACTION` of the
+    draws). Otherwise (or when
     those weights fall short) emcee (:func:`sample_posterior`): an adaptation stage of
     ``adapt_steps`` steps from the Laplace ball with the Laplace proposal
     (:class:`IndependenceMove` + DE), discarded; then the proposal refitted to
@@ -203,7 +208,9 @@ def sample_mode(
     if importance or settings.sampler == "auto":
         draws = settings.importance_draws if importance else settings.main_draws
         need = MIN_ESS_FRACTION if importance else MAIN_MIN_ESS_FRACTION
-        run = importance_sample(lp, centre, cov, draws, settings.walkers, rng, need)
+        run = importance_sample(
+            lp, centre, cov, draws, settings.walkers, rng, need, int(MIN_DRAWS_FRACTION * draws)
+        )
         log(f"  importance sampling: {run['draws']} draws, effective size {run['ess']:.0f}")
         if run["usable"]:
             return {**full_coordinates(run, lp, rng), "method": "importance"}
