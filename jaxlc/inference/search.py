@@ -3,7 +3,7 @@
 :func:`multistart` runs ≥ 1,000 optimistix Levenberg–Marquardt solves in one
 batched solve on a cheap model (facets clustered by normal, no shadows, 64 of
 the samples, the same exposure model with at most 8 sub-exposures), seeded
-by the periodogram, then half as many again at the reversed (and the same) poles of the best
+by the periodogram, then as many again at the reversed (and the same) poles of the best
 optima; the distinct optima are refined on the exact model and become
 :class:`Mode` objects. Solver outcomes are data: every solve's optimistix
 ``result`` is kept and counted (:class:`SolveReport`), so starts that did not
@@ -235,21 +235,6 @@ def least_squares(
     return theta, cost, report
 
 
-def least_squares_in_pieces(
-    model: SpinModel, data: FitData, starts: np.ndarray, max_steps: int, stage: str, piece: int
-) -> tuple[np.ndarray, np.ndarray, SolveReport]:
-    """:func:`least_squares` over ``starts`` in solves of ``piece`` starts (the last may be
-    shorter): one compilation serves every piece and other solves of that size."""
-    runs = [
-        least_squares(model, data, starts[k : k + piece], max_steps, stage)
-        for k in range(0, len(starts), piece)
-    ]
-    fields = ("solves", "converged", "max_steps", "failed")
-    counts = {f: sum(getattr(r[2], f) for r in runs) for f in fields}
-    report = dataclasses.replace(runs[0][2], **counts)
-    return np.concatenate([r[0] for r in runs]), np.concatenate([r[1] for r in runs]), report
-
-
 @filter_jit
 def _batch_magnitudes(model: SpinModel, thetas):
     return jax.vmap(model.magnitudes)(thetas)
@@ -302,7 +287,7 @@ def multistart(
     :data:`SEARCH_MAX_SUBSAMPLES` sub-exposures, prepared for the shortest
     seed period) on ``search_samples`` samples spread over the curve, one at random
     per equal run (:meth:`FitData.stratified_subset`: a regular grid aliases): it
-    only has to put starts into the right basins. A second solve of half the size starts
+    only has to put starts into the right basins. A second solve of the same size starts
     at the reversed poles of the four best optima and at those poles themselves with
     phases spread over the turn (:func:`reversed_starts`), and at the best optimum of
     up to four other periods (:func:`refinement_set`); the ``max_modes`` best distinct
@@ -321,10 +306,7 @@ def multistart(
         scene, sub, min(seeds_period_s), exact=False, max_subsamples=SEARCH_MAX_SUBSAMPLES
     )
     starts = match_offset(coarse, sub, start_points(seeds_period_s, n_starts, rng))
-    # The reversed solve has half as many starts; the search runs in pieces of that
-    # size, so both share one compilation.
-    piece = max(n_starts // 2, 1)
-    theta, cost, r1 = least_squares_in_pieces(coarse, sub, starts, search_steps, "search", piece)
+    theta, cost, r1 = least_squares(coarse, sub, starts, search_steps, "search")
     first = distinct_modes(theta, cost, max_modes=CANDIDATE_FACTOR * max_modes)
     if not first:
         raise JaxlcError(
@@ -334,11 +316,10 @@ def multistart(
     # The reversed spin (pole −u) of a good optimum gives a nearly time-reversed
     # light curve, and a body symmetric about its axis has optima half a turn apart:
     # light curve: often as good, and often missed by random starts. A second
-    # batched solve of half the size (the search ran in pieces of it: no new compilation)
-    # starts there.
+    # batched solve of the same size (no new compilation) starts there.
     # Its bases: the four best optima and the best of up to four other periods.
     bases = refinement_set(first, 4, 4)
-    rev = match_offset(coarse, sub, reversed_starts([c[0] for c in bases], piece, rng))
+    rev = match_offset(coarse, sub, reversed_starts([c[0] for c in bases], n_starts, rng))
     theta2, cost2, r2 = least_squares(coarse, sub, rev, search_steps, "reversed")
     candidates = refinement_set(
         distinct_modes(
