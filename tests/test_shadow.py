@@ -64,7 +64,8 @@ def _sha(path):
         ("s8_boom_panel", 0.05, 0.05),
     ],
 )
-def test_approximation_meets_accuracy_targets(name, p99_max, plain_p95_min):
+@pytest.mark.parametrize("interpolation", ["bilinear", "triangle"])
+def test_approximation_meets_accuracy_targets(name, p99_max, plain_p95_min, interpolation):
     """Median |Δm| ≤ 0.01 and 95th percentile ≤ 0.05 over ≥ 1,000 random geometries
     against exact polygon clipping (issue 4); the 99th percentile at phase ≤ 160° within
     issue 16's 0.05 on S7 and S8 (S4 and S6 are at 0.06: a guard of 0.1 holds their
@@ -76,7 +77,8 @@ def test_approximation_meets_accuracy_targets(name, p99_max, plain_p95_min):
     assert len(ref) >= 1000
     s = ref[["sun_x", "sun_y", "sun_z"]].to_numpy()
     v = ref[["obs_x", "obs_y", "obs_z"]].to_numpy()
-    obj = space_object(scene, None, jnp.float32, shadow=ShadowSettings())
+    obj = space_object(scene, None, jnp.float32, shadow=ShadowSettings(interpolation=interpolation))
+    assert obj.shadow.interpolation == interpolation
     approx = np.asarray(
         body_intensity(obj, jnp.asarray(s, jnp.float32), jnp.asarray(v, jnp.float32)), np.float64
     )
@@ -215,7 +217,8 @@ def test_shadows_off_option_is_the_plain_model():
 # Building blocks
 
 
-def test_octahedral_grid_round_trip_and_weights():
+@pytest.mark.parametrize("interpolation", ["bilinear", "triangle"])
+def test_octahedral_grid_round_trip_and_weights(interpolation):
     n = 16
     dirs = octahedral_directions(n)
     assert dirs.shape == (n * n, 3)
@@ -225,8 +228,18 @@ def test_octahedral_grid_round_trip_and_weights():
     )  # nodes map to themselves
     rng = np.random.default_rng(1)
     d = random_unit_vectors(rng, 2000)
-    idx, w = grid_corners(jnp.asarray(d), n, "bilinear")
+    idx, w = grid_corners(jnp.asarray(d), n, interpolation)
+    assert idx.shape == (len(d), {"bilinear": 4, "triangle": 3}[interpolation])
     np.testing.assert_allclose(np.asarray(w).sum(1), 1.0, atol=1e-6)
+    assert np.asarray(w).min() >= -1e-6  # an interpolation, not an extrapolation
+    # Both are exact for a linear function of the grid coordinates (i, j) inside the grid.
+    u, vv = octahedral_encode(d)
+    a, b = (u + 1.0) * (0.5 * n) - 0.5, (vv + 1.0) * (0.5 * n) - 0.5
+    inside = (a >= 0) & (a <= n - 1) & (b >= 0) & (b <= n - 1)
+    i_node, j_node = np.divmod(np.asarray(idx), n)
+    for coord, node in ((a, i_node), (b, j_node)):
+        lin = np.sum(np.asarray(w, np.float64) * node, axis=1)
+        np.testing.assert_allclose(lin[inside], coord[inside], atol=1e-4)
     # the weighted corners point close to the direction (within a grid cell, ~2π/n)
     blend = unit(np.einsum("tc,tcj->tj", np.asarray(w), dirs[np.asarray(idx)]))
     assert np.degrees(np.arccos(np.clip(np.sum(blend * d, 1), -1, 1))).max() < 360 / n
@@ -340,13 +353,16 @@ def test_binned_occlusion_equals_all_pairs(name, cull_back):
     assert 0.05 < blocked / (12 * len(points)) < 0.95  # both outcomes are exercised
 
 
-def test_shared_words_fraction_equals_unpacked_bits(monkeypatch):
+@pytest.mark.parametrize("interpolation", ["bilinear", "triangle"])
+def test_shared_words_fraction_equals_unpacked_bits(monkeypatch, interpolation):
     """A mesh over the budget gets 1–16 sub-points per facet, several facets to a
     word: the kernel's fractions equal counting the unpacked bits facet by facet."""
     monkeypatch.setattr(shadow_module, "SUBPOINT_BUDGET", 200)
     scene = jaxlc.load_scene(SCENES / "s6_boxwing.toml")
     mesh, f = scene.body
-    data = shadow_data(mesh, f, ShadowSettings(grid=8), use_cache=False)
+    data = shadow_data(
+        mesh, f, ShadowSettings(grid=8, interpolation=interpolation), use_cache=False
+    )
     assert data.subpoints <= 200 and data.counts.min() < 32 and len(data.groups) > 1
     rng = np.random.default_rng(2)
     s, v = random_unit_vectors(rng, 64), random_unit_vectors(rng, 64)
@@ -358,11 +374,11 @@ def test_shared_words_fraction_equals_unpacked_bits(monkeypatch):
     start, _ = word_layout(data.counts)
     bits = np.unpackbits(data.bits.view(np.uint8), axis=1, bitorder="little").astype(bool)
     slow = np.zeros_like(fast)
-    idx_s, w_s = (np.asarray(x) for x in grid_corners(jnp.asarray(s), 8))
-    idx_v, w_v = (np.asarray(x) for x in grid_corners(jnp.asarray(v), 8))
+    idx_s, w_s = (np.asarray(x) for x in grid_corners(jnp.asarray(s), 8, interpolation))
+    idx_v, w_v = (np.asarray(x) for x in grid_corners(jnp.asarray(v), 8, interpolation))
     for i, (first, k) in enumerate(zip(start, data.counts, strict=True)):
         own = bits[:, first : first + k]  # (D, k) this facet's sub-points
-        both = own[idx_s][:, :, None, :] & own[idx_v][:, None, :, :]  # (T, 4, 4, k)
+        both = own[idx_s][:, :, None, :] & own[idx_v][:, None, :, :]  # (T, C, C, k)
         slow[:, i] = np.einsum("ta,tb,tab->t", w_s, w_v, both.sum(-1)) / k
     np.testing.assert_allclose(fast, slow, atol=2e-6)
 
@@ -408,6 +424,25 @@ def test_mirroring_near_the_horizon_only_renders_alike(monkeypatch):
     n = f.normals[near.facet_ids]
     both = (s @ n.T > 0) & (v @ n.T > 0)
     np.testing.assert_array_equal(fr[0][both], fr[1][both])
+
+
+def test_interpolation_is_each_call_s_own_with_a_table_in_memory():
+    """One table (the bits depend on the grid only) serves every interpolation: a second
+    setting in the same process is not the first one's (it was, for the memory copy)."""
+    scene = jaxlc.load_scene(SCENES / "s6_boxwing.toml")
+    mesh, f = scene.body
+    rng = np.random.default_rng(3)
+    s, v = (jnp.asarray(random_unit_vectors(rng, 200), jnp.float32) for _ in range(2))
+    fractions = {}
+    for interpolation in ("bilinear", "nearest", "triangle", "bilinear"):
+        data = shadow_data(mesh, f, ShadowSettings(grid=16, interpolation=interpolation))
+        table = shadow_table(data)
+        assert data.settings.interpolation == table.interpolation == interpolation
+        got = np.asarray(lit_seen_fraction(table, s, v))
+        fractions.setdefault(interpolation, got)
+        np.testing.assert_array_equal(got, fractions[interpolation])
+    assert not np.array_equal(fractions["bilinear"], fractions["nearest"])
+    assert not np.array_equal(fractions["bilinear"], fractions["triangle"])
 
 
 def test_cache_reuse_and_invalidation(cache):

@@ -37,7 +37,8 @@ def octahedral_directions(n: int) -> np.ndarray:
 
 def grid_corners(d, n: int, interpolation: str = "bilinear"):
     """Grid nodes and weights for directions d (T, 3): (idx (T, C), w (T, C)),
-    C = 4 (bilinear) or 1 (nearest). Weights sum to 1."""
+    C = 4 (bilinear), 3 (triangle: barycentric in the half of the grid cell that holds
+    the direction) or 1 (nearest). Weights sum to 1."""
     u, v = octahedral_encode(d, xp=jnp)
     a = (u + 1.0) * (0.5 * n) - 0.5
     b = (v + 1.0) * (0.5 * n) - 0.5
@@ -51,6 +52,14 @@ def grid_corners(d, n: int, interpolation: str = "bilinear"):
     fb = jnp.clip(b - j0, 0.0, 1.0)
     i0 = i0.astype(jnp.int32)
     j0 = j0.astype(jnp.int32)
+    if interpolation == "triangle":
+        # Cell corners 00, 10, 01 and 11; the diagonal 10–01 splits it in two.
+        upper = fa + fb > 1.0
+        first = jnp.where(upper, (i0 + 1) * n + j0 + 1, i0 * n + j0)
+        idx = jnp.stack([first, (i0 + 1) * n + j0, i0 * n + j0 + 1], -1)
+        w_first = jnp.where(upper, fa + fb - 1.0, 1.0 - fa - fb)
+        w = jnp.stack([w_first, jnp.where(upper, 1.0 - fb, fa), jnp.where(upper, 1.0 - fa, fb)], -1)
+        return idx, w
     idx = jnp.stack([i0 * n + j0, (i0 + 1) * n + j0, i0 * n + j0 + 1, (i0 + 1) * n + j0 + 1], -1)
     w = jnp.stack([(1 - fa) * (1 - fb), fa * (1 - fb), (1 - fa) * fb, fa * fb], -1)
     return idx, w

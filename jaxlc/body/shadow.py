@@ -14,8 +14,7 @@ Method (precomputed sub-point visibility on a direction grid):
   joint visibility of the same sub-points from both directions, not a product of
   two marginal fractions, so partly shadowed facets are represented.
 
-Facets that cannot be shadowed get no data and no work; a convex object has no
-shadow table at all (identical to the unshadowed model).
+Facets that cannot be shadowed get no data and no work; a convex object has none.
 
 Size: a table holds grid² × sub-points bits, and tracing it costs about
 grid² × (sub-points + 2 × triangles). Both are bounded (:data:`SUBPOINT_BUDGET`,
@@ -57,6 +56,8 @@ SUBPOINT_BUDGET = 1 << 22
 #: ~0.5 µs each on the 2-core reference machine, so a few minutes at most;
 #: ``experiments/big_mesh.py``).
 TRACE_BUDGET = 1 << 29
+#: Direction-grid interpolations (:func:`jaxlc.body.octahedral.grid_corners`).
+INTERPOLATIONS = ("bilinear", "triangle", "nearest")
 #: Sub-point counts below one word: facets with these share uint32 words.
 SHARED_COUNTS = (1, 2, 4, 8, 16)
 
@@ -72,8 +73,9 @@ class ShadowSettings:
             bounding-box diagonal; a facet of area A gets 32·⌈A / (32 (spacing·diag)²)⌉
             sub-points (at least 32, at most ``max_subpoints``).
         max_subpoints: cap per facet, a multiple of 32.
-        interpolation: ``"bilinear"`` over the 4 grid corners of each direction,
-            or ``"nearest"`` (one corner: faster, coarser).
+        interpolation: ``"bilinear"`` (4 grid corners per direction), ``"triangle"``
+            (barycentric, 3: 9 corner pairs per look-up, not 16; as accurate, see
+            ``experiments/shadow_tail.py``) or ``"nearest"`` (1: faster, coarser).
     """
 
     grid: int = 32
@@ -93,9 +95,9 @@ class ShadowSettings:
             raise JaxlcError(
                 f"shadow max_subpoints = {self.max_subpoints!r} must be 32, 64, … 4096"
             )
-        if self.interpolation not in ("bilinear", "nearest"):
+        if self.interpolation not in INTERPOLATIONS:
             raise JaxlcError(
-                f"shadow interpolation = {self.interpolation!r} must be 'bilinear' or 'nearest'"
+                f"shadow interpolation = {self.interpolation!r} must be one of {INTERPOLATIONS}"
             )
 
     def words_per_facet(self, areas_m2: np.ndarray, diag_m: float) -> np.ndarray:
@@ -201,11 +203,10 @@ class ShadowData:
         return tuple((int(n), int(self.counts[f])) for f, n in zip(first, size, strict=True))
 
 
-#: Tables already loaded or traced in this process, by (cache key, cache file, its stamp).
+#: Tables loaded or traced in this process, by (cache key, cache file, its stamp), their
+#: device copies by (cache key, interpolation, dtype), and how many a process keeps.
 _LOADED: dict[tuple, ShadowData] = {}
-#: Device copies of those tables, by (cache key, dtype).
-_TABLES: dict[tuple[str, str], ShadowTable] = {}
-#: How many tables a process keeps in memory.
+_TABLES: dict[tuple[str, str, str], ShadowTable] = {}
 KEEP_TABLES = 8
 
 
@@ -269,7 +270,8 @@ def shadow_data(
     path = cache_dir("shadow") / f"{key}.npz"
     memo = (key, str(path), _stamp(path))
     if use_cache and memo in _LOADED:
-        return dataclasses.replace(_LOADED[memo], from_cache=True, seconds=0.0)
+        # the bits depend on the grid only: other settings (interpolation) are this call's
+        return dataclasses.replace(_LOADED[memo], from_cache=True, seconds=0.0, settings=settings)
     data = _load(path, key, facet_ids, counts, settings, spacing) if use_cache else None
     if data is None:
         t0 = time.perf_counter()
@@ -328,7 +330,7 @@ class ShadowTable(eqx.Module):
         subpoints: (F_s,) sub-points per facet.
         groups: ((facets, sub-points per facet), …) runs of the word layout.
         grid: octahedral grid side N (D = N²).
-        interpolation: ``"bilinear"`` or ``"nearest"``.
+        interpolation: one of :data:`INTERPOLATIONS`.
     """
 
     bits: UInt32[Array, "D W"]
@@ -383,7 +385,7 @@ def _slot_counts(words, groups, dtype):
 
 def shadow_table(data: ShadowData, dtype=jnp.float32) -> ShadowTable:
     """The kernel's view of a table (on the device; one copy per table and dtype)."""
-    memo = (data.key, str(np.dtype(dtype))) if data.key else None
+    memo = (data.key, data.settings.interpolation, str(np.dtype(dtype))) if data.key else None
     if memo in _TABLES:
         return _TABLES[memo]
     table = ShadowTable(
