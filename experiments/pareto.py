@@ -4,10 +4,11 @@ Knobs and their error references:
 
 * facet count — icosphere levels 1–5 against the analytic Lambert sphere law
   (max |Δm| for α ≤ 150°);
-* shadows — direction grid side and sub-point spacing (and interpolation) on S4
-  and S6 against the exact polygon-clipping twin (median, 95th and 99th percentile
-  and max |Δm| over the committed geometries of tests/data/shadow_reference_*.csv
-  lit and seen at phase ≤ 160°, :func:`shadow_tail.error_summary`),
+* shadows — direction grid side and sub-point spacing (and the triangle and nearest
+  interpolations) on S4 and S6 against the exact polygon-clipping twin (median,
+  95th and 99th percentile and max |Δm| over the committed geometries of
+  tests/data/shadow_reference_*.csv lit and seen at phase ≤ 160°,
+  :func:`shadow_tail.error_summary`),
   with the one-off precomputation time and the table's memory;
 * motion blur — sub-exposures per exposure on S5, S4 and S6 against 256
   sub-exposures (max |Δm| over exposures within 5 mag of the pass's median).
@@ -127,7 +128,9 @@ def shadow_rows(table, repeats_s, quick):
             )
         )
         settings = [ShadowSettings(grid=g, spacing=sp) for g in grids for sp in spacings]
-        settings.append(ShadowSettings(grid=32, spacing=0.01, interpolation="nearest"))
+        settings += [
+            ShadowSettings(grid=32, spacing=0.01, interpolation=i) for i in ("triangle", "nearest")
+        ]
         for st in settings:
             data = shadow_data(mesh, facets, st)
             if data.from_cache and not quick:  # trace afresh to time the precomputation
@@ -142,7 +145,7 @@ def shadow_rows(table, repeats_s, quick):
                     knob="shadows",
                     scene=sid,
                     setting=f"grid {st.grid}, spacing {st.spacing:g}"
-                    + (", nearest" if st.interpolation == "nearest" else ""),
+                    + ("" if st.interpolation == "bilinear" else f", {st.interpolation}"),
                     value=st.grid,
                     seconds=sec,
                     relative_cost=sec / base,
