@@ -10,7 +10,7 @@ Method (precomputed sub-point visibility on a direction grid):
   content and the settings, and kept in memory for the rest of the process.
 * At render time the lit *and* seen fraction of facet f is
   Σ_ab w_a(s) w_b(v) popcount(B_f[a] & B_f[b]) / K over the grid corners a of the
-  Sun direction s and b of the observer direction v (bilinear weights): the
+  Sun direction s and b of the observer direction v (interpolation weights): the
   joint visibility of the same sub-points from both directions, not a product of
   two marginal fractions, so partly shadowed facets are represented.
 
@@ -73,15 +73,15 @@ class ShadowSettings:
             bounding-box diagonal; a facet of area A gets 32·⌈A / (32 (spacing·diag)²)⌉
             sub-points (at least 32, at most ``max_subpoints``).
         max_subpoints: cap per facet, a multiple of 32.
-        interpolation: ``"bilinear"`` (4 grid corners per direction), ``"triangle"``
-            (barycentric, 3: 9 corner pairs per look-up, not 16; as accurate, see
-            ``experiments/shadow_tail.py``) or ``"nearest"`` (1: faster, coarser).
+        interpolation: ``"triangle"`` (barycentric over 3 grid corners per direction:
+            9 corner pairs per look-up), ``"bilinear"`` (4 corners, 16 pairs: as accurate,
+            ~10 % slower on S4; ``experiments/shadow_tail.py``) or ``"nearest"`` (1, coarser).
     """
 
     grid: int = 32
     spacing: float = 0.005
     max_subpoints: int = 512
-    interpolation: str = "bilinear"
+    interpolation: str = "triangle"
 
     def __post_init__(self):
         if not (isinstance(self.grid, int) and 4 <= self.grid <= 512):

@@ -7,7 +7,7 @@
     shadow_grid = 32                          # direction grid side (32² directions)
     shadow_spacing = 0.005                    # sub-point spacing × object size
     shadow_max_subpoints = 512                # per facet
-    shadow_interpolation = "bilinear"         # | "triangle" (3 corners) | "nearest"
+    shadow_interpolation = "triangle"         # | "bilinear" (4 corners) | "nearest"
     blur = "auto"                             # | "off": sub-exposures where the motion needs them
     blur_tolerance_mag = 0.001                # error allowed per exposure (adaptive quadrature)
     max_subsamples = 64                       # cap of the automatic choice (81 adaptive: 3⁴)
@@ -88,7 +88,7 @@ def render_options_from_table(sec: Section) -> RenderOptions:
         "shadow_spacing", float, default=0.005, check=in_range(1e-4, 1.0), what="× object size"
     )
     max_sub = sec.get("shadow_max_subpoints", float, default=512.0, check=whole(32, 4096))
-    interp = sec.get("shadow_interpolation", str, default="bilinear", check=choice(*INTERPOLATIONS))
+    interp = sec.get("shadow_interpolation", str, default="triangle", check=choice(*INTERPOLATIONS))
     blur = sec.get("blur", str, default="auto", check=choice("auto", "off"))
     tol = sec.get("blur_tolerance_mag", float, default=1e-3, check=in_range(1e-6, 1.0), what="mag")
     subsamples = sec.get("subsamples", float, default=None, check=whole(1, 4096))
