@@ -270,7 +270,7 @@ def shadow_data(
     path = cache_dir("shadow") / f"{key}.npz"
     memo = (key, str(path), _stamp(path))
     if use_cache and memo in _LOADED:
-        # the bits depend on the grid only: other settings (interpolation) are this call's
+        # the bits do not depend on the interpolation: it is this call's
         return dataclasses.replace(_LOADED[memo], from_cache=True, seconds=0.0, settings=settings)
     data = _load(path, key, facet_ids, counts, settings, spacing) if use_cache else None
     if data is None:
