@@ -35,7 +35,7 @@ def octahedral_directions(n: int) -> np.ndarray:
     return d / np.linalg.norm(d, axis=1, keepdims=True)
 
 
-def grid_corners(d, n: int, interpolation: str = "bilinear"):
+def grid_corners(d, n: int, interpolation: str):
     """Grid nodes and weights for directions d (T, 3): (idx (T, C), w (T, C)),
     C = 4 (bilinear), 3 (triangle: barycentric in the half of the grid cell that holds
     the direction) or 1 (nearest). Weights sum to 1."""

@@ -87,16 +87,14 @@ def importance_sample(
     log_q = t_log_pdf(x, centre, chol, DF)
     target = min_ess_fraction * n
     first = n if min_draws is None else min(n, -(-min_draws // batch) * batch)
-    parts: list[np.ndarray] = []
+    log_p = np.empty(n)
     for k in range(0, n, batch):
-        parts.append(lp(x[k : k + batch]))
+        log_p[k : k + batch] = lp(x[k : k + batch])
         done = k + batch
-        if first <= done < n and effective_size(_log_weights(parts, log_q)) >= target:
+        if first <= done < n and effective_size(_log_weights(log_p[:done], log_q)) >= target:
+            n, x, log_p = done, x[:done], log_p[:done]
             break
-    log_p = np.concatenate(parts)
-    n = len(log_p)
-    x = x[:n]
-    log_w = _log_weights(parts, log_q)
+    log_w = _log_weights(log_p, log_q)
     if not np.any(np.isfinite(log_w)):
         log_z, ess, keep = -math.inf, 0.0, np.zeros(n, int)
     else:
@@ -123,9 +121,8 @@ def importance_sample(
     }
 
 
-def _log_weights(log_p_parts: list[np.ndarray], log_q: np.ndarray) -> np.ndarray:
-    """ln(posterior / proposal) of the draws evaluated so far (−inf outside the prior)."""
-    log_p = np.concatenate(log_p_parts)
+def _log_weights(log_p: np.ndarray, log_q: np.ndarray) -> np.ndarray:
+    """ln(posterior / proposal) of the first len(log_p) draws (−inf outside the prior)."""
     return np.where(np.isfinite(log_p), log_p - log_q[: len(log_p)], -np.inf)
 
 
