@@ -14,6 +14,7 @@ from helpers import SCENES, lambert_sphere_intensity, random_unit_vectors, unit
 
 import jaxlc
 from jaxlc.body.attitude import Fixed, quaternion_to_matrix
+from jaxlc.body.shadow import ShadowSettings
 from jaxlc.rendering import photometry
 from jaxlc.rendering.kernel import light_curve_intensity, stack_objects
 from jaxlc.rendering.observation import geometry_arrays
@@ -134,6 +135,27 @@ def test_spin_light_curve_is_periodic(scene_name):
         )
     np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-12 * a.max())
     assert a.max() > 1.5 * a.min()  # and it does vary
+
+
+@pytest.mark.parametrize("shadows", [False, True])
+def test_chunking_changes_nothing(shadows):
+    """The kernel's blocks of instants (balanced, padded or not, one block or many)
+    give the per-instant I/E of one block holding everything (S6 with and without
+    its shadow table; 1,000 instants, a count no block size divides)."""
+    scene = jaxlc.load_scene(SCENES / "s6_boxwing.toml")
+    rng = np.random.default_rng(3)
+    n = 1000
+    t = np.sort(rng.uniform(0, 600, n))
+    s, v = unit(rng.normal(size=(n, 3))), unit(rng.normal(size=(n, 3)))
+    with jax.enable_x64(True):
+        obj = space_object(scene, None, jnp.float64, ShadowSettings() if shadows else None)
+        assert (obj.shadow is not None) == shadows
+        args = (obj, obj.attitude.times(t), jnp.asarray(s), jnp.asarray(v))
+        whole = np.asarray(light_curve_intensity(*args, chunk=n))
+        for chunk in (7, 64, 96, 128, 333, 999):
+            got = np.asarray(light_curve_intensity(*args, chunk=chunk))
+            np.testing.assert_allclose(got, whole, rtol=1e-12, atol=1e-15 * whole.max())
+    assert np.count_nonzero(whole) > n // 4  # lit and seen often enough to compare
 
 
 def test_epoch_phase_transfer(write_scene, scenes_dir):
