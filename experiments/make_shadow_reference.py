@@ -6,12 +6,11 @@ exact self-shadowing (polygon clipping, :mod:`jaxlc.body.shadow_exact`, float64)
 and without shadows. The CSV's metadata records the SHA-256 of the scene file
 and of the mesh, so a test can tell when the reference is stale.
 
-Committed: S4 at n = 1,000 (~15 minutes on 2 cores: the twin needs ~1.5 s per
-geometry), S6, S7 and S8 at n = 2,000 (~15-25 s each):
+Committed: every scene at n = 2,000 (S4 ~27 minutes on 2 cores: the twin needs
+~1.6 s per geometry; S6, S7 and S8 ~15-25 s each):
 
-    python experiments/make_shadow_reference.py --scenes s4_falcon9 --n 1000
     python experiments/make_shadow_reference.py --n 2000 \\
-        --scenes s6_boxwing s7_antenna_box s8_boom_panel
+        --scenes s4_falcon9 s6_boxwing s7_antenna_box s8_boom_panel
 """
 
 from __future__ import annotations

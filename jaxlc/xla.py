@@ -4,11 +4,7 @@
   this backend. XLA:CPU hands row reductions to YNNPACK, which splits the
   facet sum into several (samples × facets) arrays in memory; with that off it
   is one fused, vectorised loop (about 1.4× faster on the 2-core reference
-  machine, ``experiments/bench_render.py``). LLVM is also asked for 512-bit
-  vectors: the facet loop then runs ~1.25× faster (S4, with and without
-  shadows; the same results to the bit), and on a CPU without AVX-512 it
-  still compiles (wider logical vectors, also faster here under
-  ``xla_cpu_max_isa=AVX2``). Only ever applied on the CPU.
+  machine, ``experiments/bench_render.py``). Only ever applied on the CPU.
 * :func:`jit` and :func:`filter_jit` — ``jax.jit`` / ``equinox.filter_jit``
   with those options (fixed on the first call, so importing jaxlc compiles
   nothing).
@@ -29,10 +25,7 @@ from jaxlc.io.cache import cache_dir
 #: Not ``xla_cpu_prefer_vector_width = 512``: the facet loop ran ~1.25× faster with it
 #: on an AVX-512 machine, but this XLA then miscompiles ``jnp.arctan`` (zeros and
 #: shuffled values for 64 elements; wrong tumble Jacobians, LM searches that fail).
-CPU_COMPILER_OPTIONS = {
-    "xla_cpu_experimental_ynn_fusion_type": "",
-    "xla_cpu_prefer_vector_width": 512,
-}
+CPU_COMPILER_OPTIONS = {"xla_cpu_experimental_ynn_fusion_type": ""}
 #: ``JAXLC_XLA_CACHE=off`` turns the persistent compilation cache off.
 XLA_CACHE_ENV = "JAXLC_XLA_CACHE"
 

@@ -99,3 +99,25 @@ def test_sbc_fit_small(tmp_path):
     assert (df["nearest_pole_err_deg"] < 3.0).all()
     assert df["period_rank"].between(0, 1).all() and df["pole_rank"].between(0, 1).all()
     assert out.with_suffix(".png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_shadow_curves_quick(tmp_path):
+    """The per-curve shadow check (issue 16's 2 % of the median flux) runs and writes one
+    row per curve that is lit and seen."""
+    out = tmp_path / "curves.csv"
+    r = subprocess.run(
+        [
+            sys.executable,
+            str(REPO / "experiments" / "shadow_curves.py"),
+            *("--curves", "3", "--samples", "8", "--workers", "1"),
+            *("--scenes", "s7_antenna_box", "--out", str(out)),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert r.returncode == 0, r.stderr
+    df = jaxlc.read_table(out)
+    assert len(df) >= 1 and set(df["scene"]) == {"s7_antenna_box"}
+    assert (df["lit_samples"] >= 3).all() and (df["max_err_of_median_flux"] >= 0).all()
+    assert "every error ≤ 2 %" in r.stdout

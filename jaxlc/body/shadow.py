@@ -17,9 +17,10 @@ Method (precomputed sub-point visibility on a direction grid):
 Facets that cannot be shadowed get no data and no work; a convex object has none.
 
 Size: a table holds grid² × sub-points bits, and tracing it costs about
-grid² × (sub-points + 2 × triangles). Both are bounded (:data:`SUBPOINT_BUDGET`,
-512 MB at the default 32 × 32 grid; :data:`TRACE_BUDGET`). A large non-convex
-mesh (every facet gets 32 sub-points or more) gets fewer sub-points: small
+grid² × (sub-points + 2 × triangles). Both are bounded (512 MB of bits,
+:func:`subpoint_budget`; :data:`TRACE_BUDGET`). A large non-convex mesh first
+gets a grid coarser than the default 64 × 64, down to 32 × 32; if that is not
+enough (every facet gets 32 sub-points or more), fewer sub-points: small
 facets get 1, 2, 4, 8 or 16 as their area asks (facets then share words), then
 the spacing grows in steps of 2^¼; if that is not enough, a coarser grid. Each facet's
 lit-and-seen fraction is then coarser (a facet with one sub-point is lit or
@@ -50,8 +51,10 @@ from jaxlc.io.files import atomic_output
 
 #: Bump when the precomputation changes: cached tables of older versions are ignored.
 ALGORITHM_VERSION = 5
-#: Most sub-points of one table (see the module docstring).
+#: Most sub-points of one table at a 32 × 32 grid (see the module docstring).
 SUBPOINT_BUDGET = 1 << 22
+#: Grid side that a finer grid asked for gives way to, before sub-points do.
+COARSE_GRID = 32
 #: Most directions × (sub-points + 2 × triangles) of one trace (its cost, measured:
 #: ~0.5 µs each on the 2-core reference machine, so a few minutes at most;
 #: ``experiments/big_mesh.py``).
@@ -68,7 +71,10 @@ class ShadowSettings:
 
     Attributes:
         grid: side N of the octahedral direction grid (N² directions; N = 32
-            gives ~6° spacing, 64 ~3°).
+            gives ~6° spacing, 64 ~3°). 64 bounds the tail: the 99th percentile
+            of |Δm| against the exact twin at phase ≤ 160° is ≤ 0.05 on S4, S6, S7
+            and S8 (``experiments/shadow_tail.py``; 0.06 on S4 at 32), at the same
+            look-up cost and a 4× longer trace (S4: 30 s once, then cached).
         spacing: target distance between sub-points as a fraction of the mesh's
             bounding-box diagonal; a facet of area A gets 32·⌈A / (32 (spacing·diag)²)⌉
             sub-points (at least 32, at most ``max_subpoints``).
@@ -78,7 +84,7 @@ class ShadowSettings:
             ~10 % slower on S4; ``experiments/shadow_tail.py``) or ``"nearest"`` (1, coarser).
     """
 
-    grid: int = 32
+    grid: int = 64
     spacing: float = 0.005
     max_subpoints: int = 512
     interpolation: str = "triangle"
@@ -210,24 +216,36 @@ _TABLES: dict[tuple[str, str, str], ShadowTable] = {}
 KEEP_TABLES = 8
 
 
+def subpoint_budget(grid: int) -> int:
+    """Most sub-points of a table at this grid side: :data:`SUBPOINT_BUDGET` at 32 × 32,
+    the same number of bits (512 MB) at any grid."""
+    return max(1, SUBPOINT_BUDGET * COARSE_GRID**2 // grid**2)
+
+
 def _layout(mesh: TriangleMesh, facets: Facets, settings: ShadowSettings):
     """(facet ids sorted by count, sub-points per facet, settings used, spacing used).
 
-    The settings asked for, unless the table would pass :data:`SUBPOINT_BUDGET`
-    or its trace :data:`TRACE_BUDGET`: then fewer sub-points (not below one a
-    facet, nor below the triangle count, under which the trace hardly gets
-    cheaper), then a coarser grid (not below 8 × 8).
+    The settings asked for, unless the table would pass its bit budget
+    (:func:`subpoint_budget`) or its trace :data:`TRACE_BUDGET`: then first a
+    grid coarser than asked, down to :data:`COARSE_GRID`, then fewer sub-points
+    (not below one a facet, nor below the triangle count, under which the trace
+    hardly gets cheaper), then a coarser grid still (not below 8 × 8).
     """
     facet_ids = np.flatnonzero(facets.can_shadow)
     diag = float(np.linalg.norm(np.ptp(mesh.vertices_m, axis=0)))
     areas = facets.areas_m2[facet_ids]
     n_tri = int(np.count_nonzero(facets.triangle_facet >= 0))
-    per_direction = TRACE_BUDGET // settings.grid**2  # sub-points + 2 × triangles
-    budget = SUBPOINT_BUDGET
-    if 32 * int(settings.words_per_facet(areas, diag).sum()) + 2 * n_tri > per_direction:
+    full = 32 * int(settings.words_per_facet(areas, diag).sum())  # at the spacing asked for
+    grid = settings.grid
+    while grid > COARSE_GRID and (
+        full > subpoint_budget(grid) or grid**2 * (full + 2 * n_tri) > TRACE_BUDGET
+    ):
+        grid -= 1
+    per_direction = TRACE_BUDGET // grid**2  # sub-points + 2 × triangles
+    budget = subpoint_budget(grid)
+    if full + 2 * n_tri > per_direction:
         budget = min(budget, max(per_direction - 2 * n_tri, n_tri, len(facet_ids)))
     counts, spacing = settings.subpoints_per_facet(areas, diag, budget)
-    grid = settings.grid
     while grid > 8 and grid**2 * (int(counts.sum()) + 2 * n_tri) > TRACE_BUDGET:
         grid -= 1
     order = np.argsort(counts, kind="stable")  # runs of equal counts

@@ -4,7 +4,7 @@
 
     [render]                                  # optional; these are the defaults
     shadows = "auto"                          # | "off": self-shadowing where the mesh can
-    shadow_grid = 32                          # direction grid side (32² directions)
+    shadow_grid = 64                          # direction grid side (64² directions)
     shadow_spacing = 0.005                    # sub-point spacing × object size
     shadow_max_subpoints = 512                # per facet
     shadow_interpolation = "triangle"         # | "bilinear" (4 corners) | "nearest"
@@ -82,7 +82,11 @@ def render_options_from_table(sec: Section) -> RenderOptions:
     """The ``[render]`` table of a scene or dataset class (see the module docstring)."""
     shadows = sec.get("shadows", str, default="auto", check=choice("auto", "off"))
     grid = sec.get(
-        "shadow_grid", float, default=32.0, check=whole(4, 512), what="directions per side"
+        "shadow_grid",
+        float,
+        default=float(ShadowSettings().grid),
+        check=whole(4, 512),
+        what="directions per side",
     )
     spacing = sec.get(
         "shadow_spacing", float, default=0.005, check=in_range(1e-4, 1.0), what="× object size"
