@@ -170,6 +170,21 @@ def shadow_rows(table, repeats_s, quick):
     return rows
 
 
+def blur_row(sid, setting, value, seconds, relative_cost, dm) -> dict:
+    """One row of the blur knob: cost and |Δm| (over the compared exposures) of a setting."""
+    return dict(
+        knob="blur",
+        scene=sid,
+        setting=setting,
+        value=value,
+        seconds=seconds,
+        relative_cost=relative_cost,
+        err_median_mag=np.median(dm),
+        err_p95_mag=np.percentile(dm, 95),
+        err_max_mag=dm.max(),
+    )
+
+
 def blur_rows(repeats_s, quick):
     rows = []
     duration = 200.0 if quick else 400.0
@@ -189,19 +204,8 @@ def blur_rows(repeats_s, quick):
             sec = curve_time(
                 jaxlc.prepare(scene, geo_table, RenderOptions(subsamples=n)), repeats_s
             )
-            rows.append(
-                dict(
-                    knob="blur",
-                    scene=sid,
-                    setting=f"{n} sub-exposures" + (" (rule)" if n == n_auto else ""),
-                    value=n,
-                    seconds=sec,
-                    relative_cost=sec / base,
-                    err_median_mag=np.median(dm),
-                    err_p95_mag=np.percentile(dm, 95),
-                    err_max_mag=dm.max(),
-                )
-            )
+            setting = f"{n} sub-exposures" + (" (rule)" if n == n_auto else "")
+            rows.append(blur_row(sid, setting, n, sec, sec / base, dm))
 
         # The default, adaptive per exposure: whole renders (the refinement's kernel calls
         # included) against a whole render with one instant per exposure.
@@ -216,20 +220,10 @@ def blur_rows(repeats_s, quick):
             dm = np.abs(lc["mag"][keep] - dense["mag"][keep]).to_numpy()
             sec = render_time(opts)
             instants = len(ex.t_s) / max(len(ex.rows), 1)
-            rows.append(
-                dict(
-                    knob="blur",
-                    scene=sid,
-                    setting=f"adaptive {tol:g} mag ({instants:.1f} instants)"
-                    + (" (default)" if tol == RenderOptions().blur_tolerance_mag else ""),
-                    value=instants,
-                    seconds=sec,
-                    relative_cost=sec / whole_base,
-                    err_median_mag=np.median(dm),
-                    err_p95_mag=np.percentile(dm, 95),
-                    err_max_mag=dm.max(),
-                )
+            setting = f"adaptive {tol:g} mag ({instants:.1f} instants)" + (
+                " (default)" if tol == RenderOptions().blur_tolerance_mag else ""
             )
+            rows.append(blur_row(sid, setting, instants, sec, sec / whole_base, dm))
     return rows
 
 
