@@ -49,7 +49,8 @@ def geometries(n: int, seed: int = SEED) -> tuple[np.ndarray, np.ndarray]:
     )
 
 
-def _work(args):
+def twin_intensities(args):
+    """(exact, unshadowed) I/E of (scene path, Sun, observer) for one pool worker."""
     scene_path, s, v = args
     import jax
     import jax.numpy as jnp
@@ -72,7 +73,7 @@ def reference(scene_name: str, n: int, workers: int) -> pd.DataFrame:
     t0 = time.perf_counter()
     parts = np.array_split(np.arange(n), max(1, workers * 8))
     with mp.get_context("fork").Pool(workers) as pool:
-        done = pool.map(_work, [(scene_path, s[p], v[p]) for p in parts])
+        done = pool.map(twin_intensities, [(scene_path, s[p], v[p]) for p in parts])
     exact = np.concatenate([d[0] for d in done])
     plain = np.concatenate([d[1] for d in done])
     df = pd.DataFrame(

@@ -33,7 +33,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 sys.path.insert(0, str(HERE))
 
-from make_shadow_reference import _work  # noqa: E402  (the twin, one process per part)
+from make_shadow_reference import twin_intensities  # noqa: E402  (the twin, one process per part)
 from run_info import provenance  # noqa: E402
 from shadow_tail import DARK, MAX_PHASE_DEG  # noqa: E402
 
@@ -79,7 +79,7 @@ def shape_rows(name: str, n_curves: int, n_samples: int, workers: int) -> list[d
     t0 = time.perf_counter()
     parts = np.array_split(np.arange(len(s)), max(1, workers * 8))
     with mp.get_context("spawn").Pool(workers) as pool:  # fork after JAX: deadlock
-        done = pool.map(_work, [(scene_path, s[p], v[p]) for p in parts])
+        done = pool.map(twin_intensities, [(scene_path, s[p], v[p]) for p in parts])
     exact = np.concatenate([d[0] for d in done]).reshape(n_curves, n_samples)
     twin_s = time.perf_counter() - t0
     obj = space_object(
