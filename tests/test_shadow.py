@@ -248,6 +248,40 @@ def test_octahedral_grid_round_trip_and_weights(interpolation):
     assert np.all(np.abs(u) <= 1) and np.all(np.abs(vv) <= 1)
 
 
+@pytest.mark.parametrize("interpolation", ["bilinear", "triangle"])
+def test_octahedral_interpolation_is_continuous_across_the_seams(interpolation):
+    """The square's edges are seams of the sphere (the lower hemisphere folds onto the
+    corners): a smooth function interpolated from the nodes must not jump there. Pairs
+    of directions 2e-5 rad apart straddle the four seams (z < 0, x = 0 or y = 0) and the
+    −z pole; clamping the cell at the square's edge made them differ by a cell's change."""
+    n = 16
+    nodes = octahedral_directions(n)
+    f_nodes = nodes @ unit(np.array([0.3, -0.5, -0.8]))  # a smooth function on the sphere
+    rng = np.random.default_rng(4)
+    z = -rng.uniform(0.02, 0.999, 400)
+    r = np.sqrt(1 - z**2)
+    eps = 1e-5
+    pairs = []
+    for axis in (0, 1):  # seams x = 0 (y ≠ 0) and y = 0 (x ≠ 0)
+        other = r * rng.choice([-1.0, 1.0], len(z))
+        for sign in (-1.0, 1.0):
+            d = np.zeros((len(z), 3))
+            d[:, axis], d[:, 1 - axis], d[:, 2] = sign * eps, other, z
+            pairs.append(unit(d))
+    a, b = pairs[0::2], pairs[1::2]  # the same points, either side of each seam
+    pole = unit(np.column_stack([rng.normal(size=(400, 2)) * eps, -np.ones(400)]))
+    a.append(pole)
+    b.append(unit(pole * [-1.0, -1.0, 1.0]))
+
+    def interpolated(d):
+        idx, w = grid_corners(jnp.asarray(d), n, interpolation)
+        return np.sum(np.asarray(w, np.float64) * f_nodes[np.asarray(idx)], axis=1)
+
+    for x, y in zip(a, b, strict=True):
+        jump = np.abs(interpolated(x) - interpolated(y))
+        assert jump.max() < 1e-3, jump.max()  # a cell's change of f is ~0.2
+
+
 def test_sub_points_lie_on_their_facets():
     scene = jaxlc.load_scene(SCENES / "s6_boxwing.toml")
     mesh, f = jaxlc.load_mesh(scene.mesh_path), scene.facets
