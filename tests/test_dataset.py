@@ -485,6 +485,42 @@ def test_batches_cover_every_curve_once(reference):
     assert sorted(seen) == list(range(18)) and seen != sorted(seen)
 
 
+def test_batches_cover_every_block_once():
+    from jaxlc.dataset.bulk import TAIL_BATCH, batches
+
+    for n in range(0, 60):
+        calls = batches(n, 16)
+        covered = [b for start, size in calls for b in range(start, min(start + size, n))]
+        assert covered == list(range(n))
+        assert {size for _, size in calls} <= {16, TAIL_BATCH}
+        assert sum(size for _, size in calls) - n < TAIL_BATCH  # padding: < one tail batch
+
+
+def test_a_curve_does_not_depend_on_its_batch_neighbours(config_path):
+    """A class's curves rendered together (in several batches and a padded tail batch,
+    adaptive probes and all) give each curve exactly what it gets rendered alone."""
+    from jaxlc.dataset.bulk import render_class
+    from jaxlc.dataset.draw import curve_geometry, curve_scene
+
+    config = load_config(config_path)
+    curves = [c for c in (dataset.draw_curve(config, i) for i in range(config.count))]
+    for class_id in range(len(config.classes)):
+        mine = [c for c in curves if c.class_id == class_id][:6]
+
+        def prepared(cs):
+            return [
+                jaxlc.prepare(
+                    jaxlc.scene_from_dict(curve_scene(config, c)), curve_geometry(config, c).arrays
+                )
+                for c in cs
+            ]
+
+        together = render_class(config, config.classes[class_id], prepared(mine))
+        for r, c in enumerate(mine):
+            alone = render_class(config, config.classes[class_id], prepared([c]))[0]
+            np.testing.assert_array_equal(together[r], alone)
+
+
 def test_features_are_finite_where_visible(reference):
     """The documented mask: every feature finite where ``visible``, NaN elsewhere, no ±inf."""
     vis = reference["visible"][...]

@@ -11,10 +11,12 @@ changes how that work is cut and scheduled:
   mesh, one shadow table (derived once per process, whatever the curve's
   size: the scene's scale is an area factor);
 * a curve's sub-exposure instants (as many per exposure as its own render
-  plan asks) are cut into blocks of T instants; the blocks of all curves of
-  the class are evaluated ``batch_size`` at a time (the last batch padded),
-  so a class compiles once per process and a curve's result never depends
-  on its batch neighbours;
+  plan asks) are cut into blocks of T instants (the adaptive quadrature's
+  probes, one output per instant, into blocks of ~T/3: less padding at the
+  end of each curve's level); the blocks of all curves of the class are
+  evaluated ``batch_size`` at a time and the remainder :data:`TAIL_BATCH` at a
+  time (padded), so a class compiles a few shapes once per process and a
+  curve's result never depends on its batch neighbours;
 * unshadowed classes ``jax.vmap`` over the batch; shadowed ones loop over it
   inside the jitted call (``lax.map``): vmapping the shadow lookup was 1.7×
   (S4) and 3.5× (S6) slower on the 2-core reference machine.
@@ -33,10 +35,9 @@ from jaxlc.rendering.kernel import KernelInputs, SpaceObject, exposure_intensity
 from jaxlc.rendering.prepare import Prepared, adapt, probe_inputs
 from jaxlc.xla import jit
 
-#: Instants per block of the facet sum for shadowed classes: the shadow lookup runs
-#: ~15 % faster in blocks of 32 than with the default (128 for S4's 1,205 facets;
-#: the same bits, measured on the 2-core reference machine). None: the default.
-SHADOW_CHUNK = 32
+#: Blocks per kernel call for the remainder of a class's blocks after the full batches
+#: (a second compiled shape): 25 S4 curves' 25 blocks cost 28 block evaluations, not 32.
+TAIL_BATCH = 4
 
 
 def class_flags(cls) -> dict:
@@ -53,88 +54,110 @@ def class_flags(cls) -> dict:
     }
 
 
-def _one(model, attitude, shadow, inputs, free, chunk):
-    return exposure_intensity(SpaceObject(model, attitude, shadow, free), inputs, chunk)
+def _one(model, attitude, shadow, inputs, free):
+    return exposure_intensity(SpaceObject(model, attitude, shadow, free), inputs)
 
 
 @functools.cache
 def batch_kernel(sequential: bool):
-    """Jitted (B, T) exposure sums of B blocks of one class (static: free-facet count, chunk).
+    """Jitted (B, T) exposure sums of B blocks of one class (static: the free-facet count).
+
+    The kernel's own time chunk serves batches too (measured with a 64 × 64 shadow grid:
+    blocks of 32 instants, once 15 % faster, made S4 1.6× and S6 1.4× slower; a
+    smaller chunk under ``vmap`` made S3 and S5 slower).
 
     ``sequential`` loops over the batch inside the call (shadowed classes);
     otherwise the batch is vmapped.
     """
     if sequential:
 
-        def f(models, attitudes, shadow, inputs, free, chunk):
+        def f(models, attitudes, shadow, inputs, free):
             return jax.lax.map(
-                lambda a: _one(a[0], a[1], shadow, a[2], free, chunk), (models, attitudes, inputs)
+                lambda a: _one(a[0], a[1], shadow, a[2], free), (models, attitudes, inputs)
             )
 
     else:
-        f = jax.vmap(_one, in_axes=(0, 0, None, 0, None, None))
-    return jit(f, static_argnums=(4, 5))
-
-
-def _block(inputs: KernelInputs, start: int, size: int, relative: bool = False) -> KernelInputs:
-    """Instants ``start … start + size`` of a curve's inputs (padding past the end carries
-    zero weight). Output rows are the curve's (0 … size − 1 must hold them), or with
-    ``relative`` the block's own instants (one output per instant: a probe)."""
-    stop = min(start + size, len(inputs.weight))
-    pad = size - (stop - start)
-
-    def take(x):
-        x = np.asarray(x)[start:stop]
-        return np.concatenate([x, np.repeat(x[-1:], pad, axis=0)]) if pad else x
-
-    block = jax.tree_util.tree_map(take, inputs)
-    weight = block.weight.copy()
-    if pad:
-        weight[-pad:] = 0.0
-    return KernelInputs(
-        times=block.times,
-        sun_dir=block.sun_dir,
-        obs_dir=block.obs_dir,
-        weight=weight,
-        row=np.arange(size, dtype=np.int32) if relative else block.row,
-        n_rows=size,
-        subsamples=None,
-    )
+        f = jax.vmap(_one, in_axes=(0, 0, None, 0, None))
+    return jit(f, static_argnums=(4,))
 
 
 def _stack(trees):
     return jax.tree_util.tree_map(lambda *xs: np.stack([np.asarray(x) for x in xs]), *trees)
 
 
+def _concat(trees):
+    return jax.tree_util.tree_map(lambda *xs: np.concatenate([np.asarray(x) for x in xs]), *trees)
+
+
+def probe_block(samples: int) -> int:
+    """Instants per block of probe evaluations: a third of a curve's rows, a multiple of 8."""
+    return max(8, -(-samples // 24) * 8)
+
+
+def batches(n_blocks: int, size: int) -> list[tuple[int, int]]:
+    """(start, batch size) of the kernel calls over ``n_blocks`` blocks: full batches of
+    ``size``, then the remainder in batches of :data:`TAIL_BATCH` (the last padded)."""
+    tail = min(size, TAIL_BATCH)
+    full = n_blocks - n_blocks % size
+    return [(b, size) for b in range(0, full, size)] + [
+        (b, tail) for b in range(full, n_blocks, tail)
+    ]
+
+
 def _evaluate(config, cls, objects, inputs, relative: bool) -> list[np.ndarray]:
-    """Each curve's inputs cut into blocks of ``config.samples`` instants, all blocks
-    evaluated ``config.batch_size`` at a time: per curve, the (samples,) sums of its
-    output rows (``relative``: the (M,) values of its M instants)."""
-    t_len, size = config.samples, config.batch_size
-    n_inst = [len(i.weight) for i in inputs]
-    blocks = [(j, k) for j, n in enumerate(n_inst) for k in range(0, n, t_len)]
+    """Each curve's inputs cut into blocks (``config.samples`` instants; ``relative``:
+    :func:`probe_block`), all blocks evaluated in :func:`batches`: per curve, the
+    (samples,) sums of its output rows (``relative``: the (M,) values of its M instants).
+
+    A block holds instants ``k … k + L − 1`` of one curve (padding past the curve's end
+    repeats its last instant at weight zero); its output rows are the curve's (0 … L − 1
+    must hold them), or with ``relative`` the block's own instants (one per instant).
+    """
+    t_len = probe_block(config.samples) if relative else config.samples
+    n_inst = np.array([len(i.weight) for i in inputs], np.int64)
     out = [np.zeros(n if relative else t_len) for n in n_inst]
-    if not blocks:
+    curve = np.repeat(np.arange(len(inputs)), -(-n_inst // t_len))  # block → curve
+    if not len(curve):
         return out
-    flags = class_flags(cls)
+    first = np.concatenate([[0], np.cumsum(-(-n_inst // t_len))[:-1]])
+    offset = (np.arange(len(curve)) - first[curve]) * t_len  # block → its first instant
     shadow, free = objects[0].shadow, objects[0].free
     kernel = batch_kernel(shadow is not None)
-    chunk = None if shadow is None else SHADOW_CHUNK
-    for b0 in range(0, len(blocks), size):
-        batch = blocks[b0 : b0 + size]
-        real = len(batch)
-        batch = batch + [batch[0]] * (size - real)  # pad: one shape per class
-        objs = [objects[j] for j, _ in batch]
-        models = _stack(pad_models([o.model for o in objs], flags))
-        attitudes = _stack([o.attitude for o in objs])
-        stacked = _stack([_block(inputs[j], k, t_len, relative) for j, k in batch])
-        got = np.asarray(kernel(models, attitudes, shadow, stacked, free, chunk), np.float64)
-        for r, (j, k) in enumerate(batch[:real]):  # a curve's blocks in order: fixed sums
+    # every curve's model, attitude and instants gathered once; a batch takes its rows
+    models = _stack(pad_models([o.model for o in objects], class_flags(cls)))
+    attitudes = _stack([o.attitude for o in objects])
+    flat = _concat([(i.times, i.sun_dir, i.obs_dir, i.weight, i.row) for i in inputs])
+    start = np.concatenate([[0], np.cumsum(n_inst)[:-1]])
+    step = np.arange(t_len)
+    for b0, size in batches(len(curve), config.batch_size):
+        real = min(size, len(curve) - b0)
+        pad = np.full(size - real, b0)  # a few shapes per class: repeat the first block
+        blk = np.concatenate([np.arange(b0, b0 + real), pad])
+        j, k = curve[blk], offset[blk]
+        pos = k[:, None] + step[None, :]  # (size, L) instants within their curve
+        last = n_inst[j][:, None] - 1
+        times, sun, obs, weight, row = jax.tree_util.tree_map(
+            lambda x: x[start[j][:, None] + np.minimum(pos, last)],
+            flat,  # noqa: B023
+        )
+        stacked = KernelInputs(
+            times=times,
+            sun_dir=sun,
+            obs_dir=obs,
+            weight=np.where(pos <= last, weight, 0.0).astype(weight.dtype),
+            row=np.broadcast_to(step.astype(np.int32), pos.shape) if relative else row,
+            n_rows=t_len,
+            subsamples=None,
+        )
+        pick = functools.partial(jax.tree_util.tree_map, lambda x: x[j])  # noqa: B023
+        got = np.asarray(kernel(pick(models), pick(attitudes), shadow, stacked, free), np.float64)
+        for r in range(real):  # a curve's blocks in order: fixed sums
+            c = j[r]
             if relative:
-                n = min(t_len, n_inst[j] - k)
-                out[j][k : k + n] = got[r, :n]
+                n = min(t_len, n_inst[c] - k[r])
+                out[c][k[r] : k[r] + n] = got[r, :n]
             else:
-                out[j] += got[r]
+                out[c] += got[r]
     return out
 
 
