@@ -25,14 +25,9 @@ from jaxlc.body.octahedral import (
     octahedral_encode,
 )
 from jaxlc.body.raycast import sub_points, word_layout
-from jaxlc.body.shadow import (
-    ShadowSettings,
-    lit_seen_fraction,
-    reduced_resolution,
-    shadow_data,
-    shadow_table,
-)
+from jaxlc.body.shadow import ShadowSettings, reduced_resolution, shadow_data
 from jaxlc.body.shadow_exact import ExactShadows
+from jaxlc.body.shadow_lookup import lit_seen_fraction, shadow_table
 from jaxlc.rendering.kernel import body_intensity
 from jaxlc.rendering.options import RenderOptions
 from jaxlc.rendering.prepare import space_object
@@ -154,7 +149,6 @@ def test_exact_twin_roof_shadow(dx, dy):
     # the approximation represents the partial shadow too
     fine = ShadowSettings(grid=64, spacing=0.005, max_subpoints=1024)
     data = shadow_data(mesh, facets, fine, use_cache=False)
-    from jaxlc.body.shadow import lit_seen_fraction
 
     row = int(np.flatnonzero(data.facet_ids == floor_up)[0])
     approx = lit_seen_fraction(

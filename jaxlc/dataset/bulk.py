@@ -136,10 +136,8 @@ def _evaluate(config, cls, objects, inputs, relative: bool) -> list[np.ndarray]:
         j, k = curve[blk], offset[blk]
         pos = k[:, None] + step[None, :]  # (size, L) instants within their curve
         last = n_inst[j][:, None] - 1
-        times, sun, obs, weight, row = jax.tree_util.tree_map(
-            lambda x: x[start[j][:, None] + np.minimum(pos, last)],
-            flat,  # noqa: B023
-        )
+        idx = start[j][:, None] + np.minimum(pos, last)
+        times, sun, obs, weight, row = jax.tree_util.tree_map(lambda x: x[idx], flat)  # noqa: B023
         stacked = KernelInputs(
             times=times,
             sun_dir=sun,
@@ -161,7 +159,7 @@ def _evaluate(config, cls, objects, inputs, relative: bool) -> list[np.ndarray]:
     return out
 
 
-def render_class(config, cls, prepared: list[Prepared]) -> np.ndarray:
+def render_class(config, cls, prepared: list[Prepared], instants: list | None = None) -> np.ndarray:
     """Render C prepared curves of one class: (C, T) mean I/E over each exposure.
 
     Curves whose plan asks for adaptive sub-exposures are refined together
@@ -172,6 +170,8 @@ def render_class(config, cls, prepared: list[Prepared]) -> np.ndarray:
         config: the dataset config (samples, batch size).
         cls: the curves' shape class.
         prepared: each curve's :func:`~jaxlc.rendering.prepare.prepare` (float32).
+        instants: if given, each curve's mean instants per rendered exposure (after
+            the adaptive refinement) are appended to it (benchmarks).
 
     Returns:
         (C, T) float64 I/E (m² sr⁻¹) of every rendered row; NaN on rows not rendered.
@@ -184,6 +184,8 @@ def render_class(config, cls, prepared: list[Prepared]) -> np.ndarray:
         return [g[: len(probe.t_s)] for g, (_, probe) in zip(got, requests, strict=True)]
 
     prepared = adapt(prepared, probes)
+    if instants is not None:
+        instants += [len(p.exposures.t_s) / max(p.exposures.n_rows, 1) for p in prepared]
     fixed = [j for j, p in enumerate(prepared) if p.refinement is None]
     sums = _evaluate(
         config, cls, [prepared[j].object for j in fixed], [prepared[j].inputs for j in fixed], False

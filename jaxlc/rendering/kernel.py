@@ -21,7 +21,7 @@ from jaxtyping import Array, Float, Int, PyTree
 
 from jaxlc.body.attitude import AbstractAttitude
 from jaxlc.body.facet_model import FacetModel, facet_intensity, pad_models
-from jaxlc.body.shadow import ShadowTable, lit_seen_fraction
+from jaxlc.body.shadow_lookup import ShadowTable, lit_seen_fraction
 from jaxlc.errors import JaxlcError
 
 #: Target size of one (time chunk × facets) block, in elements (~1 MB of float32).
@@ -36,7 +36,7 @@ class SpaceObject(eqx.Module):
             first and the ``shadow`` table's facets follow, in its order.
         attitude: body → inertial rotation over time.
         shadow: visibility table of the facets that can be shadowed
-            (:mod:`jaxlc.body.shadow`), or None (no shadow work).
+            (:mod:`jaxlc.body.shadow_lookup`), or None (no shadow work).
         free: number of leading facets that cannot be shadowed (static).
     """
 

@@ -38,7 +38,8 @@ import pandas as pd
 
 from jaxlc.body.facet_model import facet_model, pad_facets
 from jaxlc.body.mesh import Facets
-from jaxlc.body.shadow import ShadowSettings, shadow_data, shadow_table
+from jaxlc.body.shadow import ShadowSettings, shadow_data
+from jaxlc.body.shadow_lookup import shadow_table
 from jaxlc.errors import JaxlcError
 from jaxlc.rendering.adaptive import (
     Curve,
