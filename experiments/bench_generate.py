@@ -74,8 +74,10 @@ ds = d.generate(cfg, sys.argv[2], workers=int(sys.argv[3]), count=int(sys.argv[4
 seconds = time.perf_counter() - t0
 first = len(cfg.shard_rows(0))
 steady = (len(ds) - first) / (stamps[-1] - stamps[0]) if len(stamps) > 1 else float("nan")
+lab = ds.labels
 print(json.dumps({"seconds": seconds, "curves": len(ds), "steady": steady,
-                  "renders": int(ds.labels["subsamples"].sum())}))
+                  "renders": float((lab["instants_per_exposure"] * lab["visible_samples"]).sum()),
+                  "instants": float(lab["instants_per_exposure"].mean())}))
 """
 
 
@@ -127,7 +129,8 @@ def run(store, workers, count, cap=0):
     """One generate() in a fresh process.
 
     Returns:
-        (seconds, curves, renders, curves/s after the first shard, load average).
+        (seconds, curves, renders (kernel instants), mean instants per exposure,
+        curves/s after the first shard, load average).
     """
     load = os.getloadavg()[0]
     r = subprocess.run(
@@ -141,7 +144,7 @@ def run(store, workers, count, cap=0):
         raise RuntimeError(f"generate (workers={workers}) failed:\n{r.stderr[-3000:]}")
     out = json.loads(r.stdout.strip().splitlines()[-1])
     load = max(load, os.getloadavg()[0])
-    return out["seconds"], out["curves"], out["renders"], out["steady"], load
+    return out["seconds"], out["curves"], out["renders"], out["instants"], out["steady"], load
 
 
 #: Samples fainter than this many magnitudes below their curve's median are left out of
@@ -198,7 +201,7 @@ def print_table(df: pd.DataFrame) -> None:
         caption="A: batched kernel per class (in-process, warm); B: whole generate() runs "
         "(fresh process; curves/s includes cluster start-up and compilation, steady: after the "
         "first shard); C: |Δm| of the automatic and capped blur against a fixed dense count; "
-        "sub-exp.: A instants per exposure after refinement, B and C the plans' counts",
+        "sub-exp.: instants per exposure, the adaptive refinement's included",
     )
     for col in (
         "table",
@@ -263,7 +266,7 @@ def main(argv=None) -> int:
         stores = {}
         for cap, workers in variants:
             store = Path(tmp) / f"cap{cap}_workers{workers}.zarr"
-            seconds, curves, renders, steady, load = run(store, workers, count, cap)
+            seconds, curves, renders, instants, steady, load = run(store, workers, count, cap)
             stores[(cap, workers)] = store
             if cap < 0:  # the reference: only its errors are reported
                 continue
@@ -273,7 +276,7 @@ def main(argv=None) -> int:
                     variant=f"blur ≤ {cap} sub-exposure(s)" if cap else "standard mix",
                     workers=workers if workers else "in-process",
                     curves=curves,
-                    subsamples_mean=renders / curves,
+                    subsamples_mean=instants,
                     seconds=seconds,
                     renders_per_s=renders / seconds,
                     lightcurves_per_s=curves / seconds,
@@ -304,7 +307,7 @@ def main(argv=None) -> int:
                 rows.append(dict(table="C", variant=label, workers=auto[-1][1]))
             at = next(i for i, r in enumerate(rows) if r["variant"] == label)
             rows[at].update({k: v for k, v in per_class[0].items() if k != "variant"})
-            subs = capped.labels.groupby("class", observed=True)["subsamples"].mean()
+            subs = capped.labels.groupby("class", observed=True)["instants_per_exposure"].mean()
             for j, e in enumerate(per_class[1:], 1):
                 rows.insert(
                     at + j,

@@ -371,12 +371,22 @@ def test_labels_reproduce_the_stored_curves(reference):
         # factor), so a curve re-renders exactly, shadowed or not.
         lc = jaxlc.render(jaxlc.scene_from_dict(_scene_from_labels(reference, i)), geo)
         assert _plan_subsamples(lc) == row["subsamples"]
+        # the instants the render's refinement chose (its plan line, 2 decimals); a level
+        # decision at a threshold may differ between the batched and the single kernel
+        assert row["instants_per_exposure"] == pytest.approx(_plan_instants(lc), rel=0.05, abs=0.01)
         lit = _same_as_render(reference, i, lc)
         phase = lc["phase_angle_deg"].to_numpy()
         np.testing.assert_allclose(reference["phase_angle_deg"][i], phase, atol=1e-4)
         np.testing.assert_allclose(reference["range_m"][i], lc["range_m"], rtol=1e-6)
         assert row["phase_mean_deg"] == pytest.approx(phase[lit].mean(), abs=1e-9)
         assert row["visible_samples"] == int(lit.sum())
+
+
+def _plan_instants(lc) -> float:
+    """Instants per exposure that a rendered light curve used: the adaptive refinement's
+    mean from its plan text, else the plan's fixed count."""
+    m = re.search(r"([\d.]+) instants per exposure", lc.attrs["plan"])
+    return float(m.group(1)) if m else float(_plan_subsamples(lc))
 
 
 def _plan_subsamples(lc) -> int:

@@ -73,9 +73,13 @@ def render_shard(config: DatasetConfig, shard: int, pool=None) -> Shard:
     ]
     n, t_len = len(curves), config.samples
     intensity = np.full((n, t_len), np.nan)
+    instants = np.zeros(n)  # per curve: instants per rendered exposure
     for class_id in sorted({c.class_id for c in curves}):
         idx = [j for j, c in enumerate(curves) if c.class_id == class_id]
-        intensity[idx] = render_class(config, config.classes[class_id], [prepared[j] for j in idx])
+        got = []
+        cls = config.classes[class_id]
+        intensity[idx] = render_class(config, cls, [prepared[j] for j in idx], got)
+        instants[idx] = got
 
     arr = [g.arrays for g in geos]
     observed = np.stack([a.visible for a in arr])
@@ -127,7 +131,7 @@ def render_shard(config: DatasetConfig, shard: int, pool=None) -> Shard:
         arrays["mag_noisy"] = magnitude_of(noisy).astype(np.float32)
         arrays["flux_noisy_w_m2"] = noisy.astype(np.float32)
         arrays["mag_err"] = err.astype(np.float32)
-    labels = _labels(config, curves, scenes, geos, prepared, vis, pool)
+    labels = _labels(config, curves, scenes, geos, prepared, instants, vis, pool)
     return Shard(shard, rows.start, arrays, labels)
 
 
@@ -165,9 +169,9 @@ def lit(flux_w_m2: np.ndarray) -> np.ndarray:
     return np.isfinite(f) & (f > 0)
 
 
-def _labels(config, curves, scenes, geos, prepared, visible, pool) -> pd.DataFrame:
+def _labels(config, curves, scenes, geos, prepared, instants, visible, pool) -> pd.DataFrame:
     out = []
-    for c, d, g, p, v in zip(curves, scenes, geos, prepared, visible, strict=True):
+    for c, d, g, p, m, v in zip(curves, scenes, geos, prepared, instants, visible, strict=True):
         cls = config.classes[c.class_id]
         a = g.arrays
         any_v = bool(v.any())
@@ -188,6 +192,7 @@ def _labels(config, curves, scenes, geos, prepared, visible, pool) -> pd.DataFra
             "period_s": c.period_s,
             "phase_deg": c.phase_deg,
             "subsamples": p.plan.subsamples if a.visible.any() else 0,
+            "instants_per_exposure": float(m),
             "shadows": p.plan.shadow is not None,
             "utc_start": g.utc_start,
             "visible_samples": int(v.sum()),

@@ -113,6 +113,11 @@ LABELS = {
         0,
         "sub-exposures per exposure of the per-curve rule (adaptive blur starts there)",
     ),
+    "instants_per_exposure": (
+        "float64",
+        np.nan,
+        "mean sub-exposure instants per rendered exposure, adaptive refinement included",
+    ),
     "shadows": ("bool", False, "self-shadowing rendered"),
     "geometry": ("str", "", "'synthetic' or 'pass'"),
     "utc_start": ("str", "", "UTC of the first sample"),
@@ -326,7 +331,15 @@ def write_shard(path: str | Path, shard: int, start: int, arrays: dict, labels: 
     for name, x in arrays.items():
         root[name][start:stop] = x
     group = root["labels"]
-    for name, (dtype, _, _) in LABELS.items():
+    for name, (dtype, fill, _) in LABELS.items():
+        if name not in group:  # resuming a store of an older format that lacks the label
+            group.create_array(
+                name,
+                shape=(int(root.attrs["count"]),),
+                chunks=(int(root.attrs["shard_size"]),),
+                dtype=str if dtype == "str" else dtype,
+                fill_value=fill,
+            )
         values = labels[name].to_numpy()
         group[name][start:stop] = values.astype(object) if dtype == "str" else values
     root["shards"]["done"][shard] = True  # last: a partial shard is never marked done
