@@ -242,6 +242,29 @@ def test_interrupted_run_resumes_without_loss(config_path, reference, tmp_path):
     same_bytes(ds, reference)
 
 
+def test_store_without_a_newer_label_resumes(config_path, reference, tmp_path):
+    """A store begun before a label column existed (here: instants_per_exposure, deleted)
+    is resumed: its finished shards read the column's fill, the new shards write it."""
+    import zarr
+
+    out = tmp_path / "older.zarr"
+    first = []
+
+    def stop_after_one(k):
+        first.append(k)
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        dataset.generate(config_path, out, workers=0, progress=False, on_shard=stop_after_one)
+    del zarr.open_group(str(out), mode="r+")["labels"]["instants_per_exposure"]
+    ds = dataset.generate(config_path, out, workers=0, progress=False)
+    got = ds.labels["instants_per_exposure"].to_numpy()
+    want = reference.labels["instants_per_exposure"].to_numpy()
+    assert np.all(np.isnan(got[:4]))  # the shard finished before: the column's fill
+    np.testing.assert_array_equal(got[4:], want[4:])
+    assert np.all(want[reference.labels["visible_samples"].to_numpy() > 0] >= 1)
+
+
 def test_killed_process_resumes_to_the_uninterrupted_result(tmp_path):
     cfg = tmp_path / "kill.toml"
     cfg.write_text(

@@ -127,7 +127,13 @@ def generate(
     same config, count and seed give the same bytes (on the same platform).
     """
     from jaxlc.dataset.reader import open_dataset
-    from jaxlc.dataset.store import check_store, create_store, done_shards, remove_new_store
+    from jaxlc.dataset.store import (
+        add_missing_labels,
+        check_store,
+        create_store,
+        done_shards,
+        remove_new_store,
+    )
 
     out = check_output(out_path, "store", option="output").resolve()
     if not isinstance(config, DatasetConfig):
@@ -136,6 +142,7 @@ def generate(
     resuming = out.exists()
     if resuming:
         check_store(out, config)
+        add_missing_labels(out)  # a store from before a label column existed
     done = done_shards(out) if resuming else np.zeros(config.n_shards, bool)
     todo = [k for k in range(config.n_shards) if not done[k]]
     bar = _progress_bar(progress)

@@ -318,6 +318,28 @@ def check_store(path: Path, config) -> None:
         )
 
 
+def add_missing_labels(path: str | Path) -> list[str]:
+    """Give a store the label columns that it lacks (one made before they existed; the
+    reader fills them for finished shards): before resuming it, in one process.
+
+    Returns:
+        The names of the columns added.
+    """
+    root = zarr_module().open_group(str(path), mode="r+")
+    group, added = root["labels"], []
+    for name, (dtype, fill, _) in LABELS.items():
+        if name not in group:
+            group.create_array(
+                name,
+                shape=(int(root.attrs["count"]),),
+                chunks=(int(root.attrs["shard_size"]),),
+                dtype=str if dtype == "str" else dtype,
+                fill_value=fill,
+            )
+            added.append(name)
+    return added
+
+
 def done_shards(path: str | Path) -> np.ndarray:
     """(S,) bool: which shards are complete."""
     root = zarr_module().open_group(str(path), mode="r")
@@ -331,15 +353,7 @@ def write_shard(path: str | Path, shard: int, start: int, arrays: dict, labels: 
     for name, x in arrays.items():
         root[name][start:stop] = x
     group = root["labels"]
-    for name, (dtype, fill, _) in LABELS.items():
-        if name not in group:  # resuming a store of an older format that lacks the label
-            group.create_array(
-                name,
-                shape=(int(root.attrs["count"]),),
-                chunks=(int(root.attrs["shard_size"]),),
-                dtype=str if dtype == "str" else dtype,
-                fill_value=fill,
-            )
+    for name, (dtype, _, _) in LABELS.items():
         values = labels[name].to_numpy()
         group[name][start:stop] = values.astype(object) if dtype == "str" else values
     root["shards"]["done"][shard] = True  # last: a partial shard is never marked done
