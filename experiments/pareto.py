@@ -68,8 +68,7 @@ def curve_time(prepared, repeats_s=0.5):
 
 def relative_time(prepared, base, repeats_s=0.5) -> tuple[float, float]:
     """(seconds, ratio to ``base``) for one light curve of a prepared render, timed in
-    alternation with the base render: a few seconds of a slower machine (these are
-    shared) would otherwise put single rows of a table at 3-6x."""
+    alternation with the base render (the machines are shared: drift affects both)."""
     f = jax.jit(exposure_intensity, compiler_options=compiler_options())
     got = timed_interleaved(
         {

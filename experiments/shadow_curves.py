@@ -25,6 +25,7 @@ import sys
 import time
 from pathlib import Path
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pandas as pd
@@ -38,6 +39,7 @@ from run_info import provenance  # noqa: E402
 from shadow_tail import DARK, MAX_PHASE_DEG  # noqa: E402
 
 import jaxlc  # noqa: E402
+from jaxlc.body.free_body import axis_angle_matrix  # noqa: E402
 from jaxlc.io.tables import write_table  # noqa: E402
 from jaxlc.rendering.kernel import body_intensity  # noqa: E402
 from jaxlc.rendering.prepare import space_object  # noqa: E402
@@ -52,9 +54,10 @@ def unit(x):
 
 
 def rotate(x, axis, angle):
-    """(T, 3): the vector x (3,) turned by each angle (T,) about the unit axis (Rodrigues)."""
-    c, s = np.cos(angle)[:, None], np.sin(angle)[:, None]
-    return x * c + np.cross(axis, x) * s + axis * (axis @ x) * (1 - c)
+    """(T, 3): the vector x (3,) turned by each angle (T,) about the unit axis (float64)."""
+    with jax.enable_x64(True):
+        turn = jax.vmap(axis_angle_matrix, in_axes=(None, 0))(jnp.asarray(axis), angle)
+        return np.asarray(turn @ jnp.asarray(x))
 
 
 def curve_geometries(n_curves: int, n_samples: int, rng) -> tuple[np.ndarray, np.ndarray]:

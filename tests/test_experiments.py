@@ -11,21 +11,22 @@ from helpers import REPO
 import jaxlc
 
 
-def test_bench_render_quick(tmp_path):
-    out = tmp_path / "bench.csv"
+def run_experiment(script: str, *args: str, timeout: int = 600) -> subprocess.CompletedProcess:
+    """Run ``experiments/<script>`` with ``args`` in a fresh interpreter; fail on a non-zero
+    exit with its stderr."""
     r = subprocess.run(
-        [
-            sys.executable,
-            str(REPO / "experiments" / "bench_render.py"),
-            "--quick",
-            "--out",
-            str(out),
-        ],
+        [sys.executable, str(REPO / "experiments" / script), *args],
         capture_output=True,
         text=True,
-        timeout=600,
+        timeout=timeout,
     )
     assert r.returncode == 0, r.stderr
+    return r
+
+
+def test_bench_render_quick(tmp_path):
+    out = tmp_path / "bench.csv"
+    run_experiment("bench_render.py", "--quick", "--out", str(out))
     df = jaxlc.read_table(out)
     assert set(df["table"]) == {"A", "B", "C", "D"}
     assert set(df[df.table == "A"]["scene"]) == {"S2", "S3", "S4", "S5", "S6"}
@@ -39,19 +40,7 @@ def test_bench_render_quick(tmp_path):
 
 def test_bench_geometry_quick(tmp_path):
     out = tmp_path / "geo.csv"
-    r = subprocess.run(
-        [
-            sys.executable,
-            str(REPO / "experiments" / "bench_geometry.py"),
-            "--quick",
-            "--out",
-            str(out),
-        ],
-        capture_output=True,
-        text=True,
-        timeout=600,
-    )
-    assert r.returncode == 0, r.stderr
+    run_experiment("bench_geometry.py", "--quick", "--out", str(out))
     df = jaxlc.read_table(out)
     assert df["stage"].iloc[0].startswith("find_passes")
     assert (df["object_samples_per_s"] > 0).all()
@@ -60,13 +49,7 @@ def test_bench_geometry_quick(tmp_path):
 
 def test_pareto_quick(tmp_path):
     out = tmp_path / "pareto.csv"
-    r = subprocess.run(
-        [sys.executable, str(REPO / "experiments" / "pareto.py"), "--quick", "--out", str(out)],
-        capture_output=True,
-        text=True,
-        timeout=900,
-    )
-    assert r.returncode == 0, r.stderr
+    run_experiment("pareto.py", "--quick", "--out", str(out), timeout=900)
     df = jaxlc.read_table(out)
     assert set(df["knob"]) == {"facets", "shadows", "blur"}
     assert out.with_suffix(".png").read_bytes()[:4] == b"\x89PNG"
@@ -80,19 +63,13 @@ def test_sbc_fit_small(tmp_path):
     must recover the period and, in one of its modes, the pole (the render → fit
     round trips of tests/test_consistency.py check recovery more widely)."""
     out = tmp_path / "sbc.csv"
-    r = subprocess.run(
-        [
-            sys.executable,
-            str(REPO / "experiments" / "sbc_fit.py"),
-            *("--cases", "1", "--starts", "512", "--max-steps", "1000", "--modes", "2"),
-            *("--duration-s", "400"),
-            *("--out", str(out)),
-        ],
-        capture_output=True,
-        text=True,
+    run_experiment(
+        "sbc_fit.py",
+        *("--cases", "1", "--starts", "512", "--max-steps", "1000", "--modes", "2"),
+        *("--duration-s", "400"),
+        *("--out", str(out)),
         timeout=900,
     )
-    assert r.returncode == 0, r.stderr
     df = jaxlc.read_table(out)
     assert len(df) == 1
     assert (df["period_rel_err"].abs() < 1e-3).all()
@@ -105,18 +82,11 @@ def test_shadow_curves_quick(tmp_path):
     """The per-curve shadow check (issue 16's 2 % of the median flux) runs and writes one
     row per curve that is lit and seen."""
     out = tmp_path / "curves.csv"
-    r = subprocess.run(
-        [
-            sys.executable,
-            str(REPO / "experiments" / "shadow_curves.py"),
-            *("--curves", "3", "--samples", "8", "--workers", "1"),
-            *("--scenes", "s7_antenna_box", "--out", str(out)),
-        ],
-        capture_output=True,
-        text=True,
-        timeout=600,
+    r = run_experiment(
+        "shadow_curves.py",
+        *("--curves", "3", "--samples", "8", "--workers", "1"),
+        *("--scenes", "s7_antenna_box", "--out", str(out)),
     )
-    assert r.returncode == 0, r.stderr
     df = jaxlc.read_table(out)
     assert len(df) >= 1 and set(df["scene"]) == {"s7_antenna_box"}
     assert (df["lit_samples"] >= 3).all() and (df["max_err_of_median_flux"] >= 0).all()

@@ -8,7 +8,7 @@ Method (precomputed sub-point visibility on a direction grid):
   (:mod:`jaxlc.body.raycast`, traced once on the host). The bits are cached on disk
   (:func:`jaxlc.io.cache.cache_dir` ``("shadow")``), keyed by the mesh's
   content and the settings, and kept in memory for the rest of the process.
-* At render time the lit *and* seen fraction of facet f is
+* At render time (:mod:`jaxlc.body.shadow_lookup`) the lit *and* seen fraction of facet f is
   Σ_ab w_a(s) w_b(v) popcount(B_f[a] & B_f[b]) / K over the grid corners a of the
   Sun direction s and b of the observer direction v (interpolation weights): the
   joint visibility of the same sub-points from both directions, not a product of

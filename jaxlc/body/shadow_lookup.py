@@ -26,12 +26,12 @@ class ShadowTable(eqx.Module):
     """Packed visibility bits of the facets that can be shadowed (traced input).
 
     Attributes:
-        bits: (D, W) uint32 (see :class:`ShadowData`); bit b of a word says
+        bits: (D, W) uint32 (see :class:`jaxlc.body.shadow.ShadowData`); bit b of a word says
             whether that sub-point sees the grid direction of the row.
         subpoints: (F_s,) sub-points per facet.
         groups: ((facets, sub-points per facet), …) runs of the word layout.
         grid: octahedral grid side N (D = N²).
-        interpolation: one of :data:`INTERPOLATIONS`.
+        interpolation: one of :data:`jaxlc.body.shadow.INTERPOLATIONS`.
     """
 
     bits: UInt32[Array, "D W"]
