@@ -91,3 +91,15 @@ def test_shadow_curves_quick(tmp_path):
     assert len(df) >= 1 and set(df["scene"]) == {"s7_antenna_box"}
     assert (df["lit_samples"] >= 3).all() and (df["max_err_of_median_flux"] >= 0).all()
     assert "every error ≤ 2 %" in r.stdout
+
+
+def test_quadrature_study_replays_the_code(tmp_path):
+    """The quadrature study's replay of the adaptive scheme (from dense instants, its own
+    code) gives the instants and errors of jaxlc's refinement on the same curve."""
+    out = tmp_path / "quad.csv"
+    run_experiment("quadrature_study.py", "--curves", "1", "--classes", "S3", "--out", str(out))
+    df = jaxlc.read_table(out)
+    code = df[df["scheme"] == "patterson"].iloc[0]
+    assert code["instants_per_exposure"] == pytest.approx(code["render_instants"], rel=0.05)
+    assert code["max_mmag"] == pytest.approx(code["render_max_mmag"], rel=1e-3, abs=1e-3)
+    assert {"midpoint", "patterson"} <= set(df["scheme"])

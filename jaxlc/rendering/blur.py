@@ -12,9 +12,12 @@ scene:
 
 When Δθ < σ/10 blur is negligible: one instant, mid-exposure. Otherwise the
 sub-exposures are chosen per exposure by the adaptive quadrature of
-:mod:`jaxlc.rendering.adaptive`, which starts one level below the count of this
-module's per-curve rule, n = ⌈k Δθ/σ⌉ midpoints (at most ``max_subsamples``;
-k = 2.5 for lobes and diffuse turn-on, 0.8 for shadow edges). That rule alone
+:mod:`jaxlc.rendering.adaptive`, which starts at the least level whose instants
+are no farther apart than the sharpest lobe (or diffuse) scale — a glint can
+hide between coarser instants, a shadow edge cannot
+(:attr:`BlurChoice.start_scale_rad`). This module's per-curve rule,
+n = ⌈k Δθ/σ⌉ midpoints (at most ``max_subsamples``; k = 2.5 for lobes and
+diffuse turn-on, 0.8 for shadow edges), is the fixed count. That rule alone
 (a fixed count, ``[render] subsamples``, or what the search model of the spin
 fit uses) bounds the error only on average: over the demo pass its p99 error
 was 2.4 mag for S3 (dark end-on samples) and 0.06 mag for S4
@@ -51,6 +54,10 @@ class BlurChoice:
         capped: whether ``max_subsamples`` limited the count.
         adaptive: the count is refined per exposure (:mod:`jaxlc.rendering.adaptive`);
             ``subsamples`` is then the rule's estimate for the fastest motion.
+        start_scale_rad: the angular scale of the sharpest feature that coarse instants
+            can miss entirely — a specular lobe, or diffuse turn-on, but not a shadow
+            edge (:func:`feature_scale_rad` without shadows); it sets the adaptive
+            quadrature's first level. None: ``scale_rad``.
     """
 
     subsamples: int
@@ -60,6 +67,12 @@ class BlurChoice:
     feature: str
     capped: bool = False
     adaptive: bool = False
+    start_scale_rad: float | None = None
+
+    @property
+    def start_scale(self) -> float:
+        """:attr:`start_scale_rad`, or :attr:`scale_rad` when it is not set (rad)."""
+        return self.scale_rad if self.start_scale_rad is None else self.start_scale_rad
 
     @property
     def negligible(self) -> bool:

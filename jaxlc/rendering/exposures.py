@@ -17,6 +17,7 @@ import numpy as np
 
 from jaxlc.errors import JaxlcError
 from jaxlc.rendering.observation import GeometryArrays
+from jaxlc.rendering.patterson import level_rule
 
 QUADRATURES = ("midpoint", "endpoints")
 
@@ -37,7 +38,9 @@ class Exposures:
             each instant.
         quadrature: ``"midpoint"`` (instants t + e (k + ½)/S, equal weights) or
             ``"endpoints"`` (t + e k/(S − 1), trapezoid weights: what a renderer
-            that keyframes the exposure's ends needs).
+            that keyframes the exposure's ends needs). Adaptive exposures keep
+            ``"midpoint"``: they start from the mid-exposure instant and their
+            instants and weights are the nested rule's (:func:`nested_instants`).
     """
 
     rows: np.ndarray
@@ -101,21 +104,6 @@ def exposure_instants(
     )
 
 
-def nested_fractions(level: int) -> np.ndarray:
-    """Fractions of the exposure of the nested midpoint rule of level L: the
-    centres (j + ½)/3ᴸ, j = 0 … 3ᴸ − 1, of 3ᴸ equal parts (level L + 1 keeps them)."""
-    n = 3 ** int(level)
-    return (np.arange(n) + 0.5) / n
-
-
-def added_fractions(level: int) -> np.ndarray:
-    """Fractions that level L ≥ 1 of the nested midpoint rule adds to level L − 1:
-    c ± 1/3ᴸ around each centre c of level L − 1 (2 · 3ᴸ⁻¹ of them)."""
-    c = nested_fractions(level - 1)
-    d = 1.0 / 3 ** int(level)
-    return np.sort(np.concatenate([c - d, c + d]))
-
-
 def probe_instants(geo: GeometryArrays, rows, fractions, t0_s: float = 0.0) -> Exposures:
     """Instants at the same ``fractions`` of each exposure of ``rows``, each instant
     its own output row (weight 1): what evaluating the kernel instant by instant needs."""
@@ -136,24 +124,29 @@ def probe_instants(geo: GeometryArrays, rows, fractions, t0_s: float = 0.0) -> E
 
 
 def nested_instants(geo: GeometryArrays, rows, levels, t0_s: float = 0.0) -> Exposures:
-    """The instants of the nested midpoint rule, level ``levels[i]`` for exposure ``rows[i]``
-    (3^level equal-weight instants each; :attr:`Exposures.subsamples` None unless all equal)."""
+    """The instants and weights of the adaptive quadrature's rule of level ``levels[i]``
+    (:func:`jaxlc.rendering.patterson.level_rule`) for exposure ``rows[i]``
+    (:attr:`Exposures.subsamples` None unless all levels are equal)."""
     rows = np.asarray(rows, np.int64)
     levels = np.asarray(levels, np.int64)
-    counts = 3**levels
-    owner = np.repeat(np.arange(len(rows)), counts)
-    # position of each instant within its exposure
-    first = np.concatenate([[0], np.cumsum(counts)[:-1]]) if len(rows) else np.zeros(0, np.int64)
-    j = np.arange(len(owner)) - np.repeat(first, counts)
-    frac = (j + 0.5) / np.repeat(counts, counts)
+    n = len(rows)
+    frac = np.zeros(0)
+    weight = np.zeros(0)
+    owner = np.zeros(0, np.int64)
+    if n:
+        parts = [level_rule(int(k)) for k in levels]
+        counts = np.array([len(f) for f, _ in parts])
+        frac = np.concatenate([f for f, _ in parts])
+        weight = np.concatenate([w for _, w in parts])
+        owner = np.repeat(np.arange(n), counts)
     r = rows[owner]
-    same = len(rows) > 0 and np.all(levels == levels[0])
+    same = n > 0 and np.all(levels == levels[0])
     return Exposures(
         rows=rows,
         t_s=geo.t_start_s[r] - t0_s + geo.exposure_s[r] * frac,
         row=owner,
-        weight=1.0 / np.repeat(counts, counts).astype(np.float64),
+        weight=weight,
         sun_dir=geo.sun_dir[r],
         obs_dir=geo.obs_dir[r],
-        subsamples=int(counts[0]) if same else None,
+        subsamples=len(level_rule(int(levels[0]))[0]) if same else None,
     )

@@ -134,6 +134,7 @@ def choose_blur(
     scale, feature = feature_scale_rad(materials, facets, shadowed=shadowed)
     exposure = float(np.max(geo.exposure_s[rows])) if len(rows) else 0.0
     auto = choose_subsamples(exposure, attitude_rate_rad_s, scale, feature, options.max_subsamples)
+    auto = dataclasses.replace(auto, start_scale_rad=feature_scale_rad(materials)[0])
     if options.subsamples is not None:
         blur = dataclasses.replace(auto, subsamples=options.subsamples, capped=False)
         reason = f"{options.subsamples} per exposure (fixed; automatic: {auto.subsamples})"

@@ -365,19 +365,13 @@ def adapt(
     if len(tol) > 1 or len(level) > 1:
         raise JaxlcError("adapt: curves refined together must share blur options")
     last = next(iter(level))
-    curves = [
-        Curve(
-            prepared[i].geometry,
-            prepared[i].exposures.rows,
-            prepared[i].t0_s,
-            min(
-                last,
-                first_level_for(prepared[i].plan.blur.sweep_rad, prepared[i].plan.blur.scale_rad)
-                + int(least_levels),
-            ),
-        )
-        for i in todo
-    ]
+    curves = []
+    for i in todo:
+        blur = prepared[i].plan.blur
+        first = min(last, first_level_for(blur.sweep_rad, blur.start_scale) + int(least_levels))
+        resolved = first_level_for(blur.sweep_rad, blur.start_scale / 2)
+        prep = prepared[i]
+        curves.append(Curve(prep.geometry, prep.exposures.rows, prep.t0_s, first, resolved))
     found = refine(
         curves,
         lambda probes: evaluate([(prepared[i], p) for i, p in zip(todo, probes, strict=True)]),
