@@ -17,7 +17,7 @@ import numpy as np
 
 from jaxlc.errors import JaxlcError
 from jaxlc.rendering.observation import GeometryArrays
-from jaxlc.rendering.patterson import level_rule
+from jaxlc.rendering.patterson import level_count, level_rule
 
 QUADRATURES = ("midpoint", "endpoints")
 
@@ -130,15 +130,18 @@ def nested_instants(geo: GeometryArrays, rows, levels, t0_s: float = 0.0) -> Exp
     rows = np.asarray(rows, np.int64)
     levels = np.asarray(levels, np.int64)
     n = len(rows)
-    frac = np.zeros(0)
-    weight = np.zeros(0)
-    owner = np.zeros(0, np.int64)
-    if n:
-        parts = [level_rule(int(k)) for k in levels]
-        counts = np.array([len(f) for f, _ in parts])
-        frac = np.concatenate([f for f, _ in parts])
-        weight = np.concatenate([w for _, w in parts])
-        owner = np.repeat(np.arange(n), counts)
+    counts = np.array([level_count(k) for k in range(int(levels.max(initial=0)) + 1)])[levels]
+    owner = np.repeat(np.arange(n), counts)
+    # position of each instant within its exposure, then the rule's node of that level
+    start = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+    j = np.arange(len(owner)) - np.repeat(start, counts)
+    lv = levels[owner]
+    frac = np.empty(len(owner))
+    weight = np.empty(len(owner))
+    for k in np.unique(levels):
+        at = lv == k
+        f, w = level_rule(int(k))
+        frac[at], weight[at] = f[j[at]], w[j[at]]
     r = rows[owner]
     same = n > 0 and np.all(levels == levels[0])
     return Exposures(
