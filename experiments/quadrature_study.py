@@ -132,16 +132,17 @@ def study_curve(label: str, k: int, geo: pd.DataFrame, rng) -> list[dict]:
     done = adapt([prep], evaluate_instants)[0].refinement  # what jaxlc.render does
     code_err = 1e3 * MAG_PER_REL * np.abs(done.intensity[keep] - ref[keep]) / scale[keep]
     rows = []
-    finer = min(first_level_for(blur.sweep_rad, blur.start_scale / 2), last_p)
+    resolved = first_level_for(blur.sweep_rad, blur.start_scale / 2)  # as adapt()
+    finer = min(resolved, last_p)
     never = len(p_counts)
-    for scheme, q, counts, first, resolved in (
+    for scheme, q, counts, first, law_from in (
         ("midpoint", q_mid, mid_counts, first_mid, 0),
         ("patterson, ε = |ΔQ|", q_p, p_counts, first_p, never),
         ("patterson, D_k throughout", q_p, p_counts, first_p, 0),
         ("patterson, start gap σ/2", q_p, p_counts, finer, 0),
-        ("patterson", q_p, p_counts, first_p, finer),
+        ("patterson", q_p, p_counts, first_p, resolved),
     ):
-        inst, est = replay(q[keep], counts, first, floor, resolved)
+        inst, est = replay(q[keep], counts, first, floor, law_from)
         err = 1e3 * MAG_PER_REL * np.abs(est - ref[keep]) / scale[keep]
         err = err[sel[keep]]
         best = oracle(q[keep], counts, ref[keep], scale[keep])
