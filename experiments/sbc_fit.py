@@ -36,6 +36,7 @@ import math
 import time
 from pathlib import Path
 
+import jax
 import numpy as np
 import pandas as pd
 
@@ -227,6 +228,8 @@ def main(argv=None) -> pd.DataFrame:
     k = a.start
     while sum(r["signal_chi2"] >= FLAT_CHI2 for r in rows) < a.cases:
         rows.append(case(scene, geo, k, settings))
+        # every case compiles models of its own sizes; kept, they filled 24 GB by case 71
+        jax.clear_caches()
         print(pd.Series(rows[-1]).to_dict(), flush=True)
         df = pd.DataFrame(rows)
         jaxlc.write_table(df, out)
