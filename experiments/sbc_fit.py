@@ -234,6 +234,7 @@ def main(argv=None) -> pd.DataFrame:
         df = pd.DataFrame(rows)
         jaxlc.write_table(df, out)
         k += 1
+    df = pd.DataFrame(rows)  # (also when resumed with every case already in --out)
     df["refused"] = df.get("refused", pd.Series(False, index=df.index)).fillna(False).astype(bool)
     # Flat cases: the noise-free curve's rotation signal is below the noise
     # (χ² < FLAT_CHI2 over the whole curve); "no period" is the right answer there.

@@ -16,7 +16,7 @@ every point is new).
 The rules' points are the roots of Patterson's extension polynomials, found
 once (:func:`nested_rules`) by solving their orthogonality conditions in the
 Legendre basis; the weights are interpolatory. Both are checked against the
-published 7-point rule and for polynomial exactness (tests/test_blur.py).
+published 7-point rule and for polynomial exactness (tests/test_patterson.py).
 
 Example:
     >>> frac, w = level_rule(2)        # 7 fractions of the exposure, weights summing to 1
