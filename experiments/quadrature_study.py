@@ -6,15 +6,15 @@ instantaneous I/E is evaluated at the 729 midpoints of every exposure (the
 reference, and every nested-midpoint level as a subset) and at the points of
 the Gauss–Patterson levels. Both adaptive schemes are then replayed from these
 values with the same tolerance (1 mmag), error law (ε = |Q_k − Q_{k−1}|/D_k,
-D_k = (n_k/n_{k−1})² − 1: 8 for midpoints) and the same cap, each with its own
-first level:
+D_k = (n_k/n_{k−1})² − 1: 8 for midpoints) and cap rule (at most 3 ×
+``max_subsamples`` instants), each with its own first level:
 
 * **midpoint** (the rule before 12-2026): first level from the sharpest feature
   *including* shadow edges (instants no farther apart than its scale), D = 8;
 * **patterson** (the default now): first level from lobes only (largest gap
   within the lobe's scale σ), D_k once the level's gaps are within σ/2, 1 before
-  — the same as :func:`jaxlc.render`, which is also run, so the replay is checked
-  against the code; and three variants of it: D_k throughout, D = 1 throughout
+  — the same as :func:`jaxlc.render`, whose refinement is also run, so the replay
+  is checked against the code; and three variants of it: D_k throughout, D = 1 throughout
   (ε = |ΔQ|), and the first level at gaps within σ/2.
 
 Also the *oracle*: per exposure, the fewest instants of each family from which
@@ -23,7 +23,7 @@ could at best achieve. Errors are |Δm| over exposures within 5 mag of the
 curve's median (the bulk benchmark's selection). Writes
 ``experiments/results/quadrature_study.csv`` (one row per curve and scheme).
 
-    python experiments/quadrature_study.py [--curves 10]     # ~4 min on 2 cores
+    python experiments/quadrature_study.py [--curves 10]     # ~6 min on 2 cores
 """
 
 from __future__ import annotations
