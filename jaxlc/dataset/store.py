@@ -194,15 +194,7 @@ def create_store(path: Path, config, pool=None) -> bool:
             )
         ts = root.create_array("t_s", shape=(t,), chunks=(t,), dtype="float64")
         ts[:] = np.arange(t) * config.cadence_s
-        labels = root.create_group("labels")
-        for name, (dtype, fill, _) in LABELS.items():
-            labels.create_array(
-                name,
-                shape=(n,),
-                chunks=(config.shard_size,),
-                dtype=str if dtype == "str" else dtype,
-                fill_value=fill,
-            )
+        _create_labels(root.create_group("labels"), n, config.shard_size)
         shards = root.create_group("shards")
         shards.create_array(
             "done", shape=(config.n_shards,), chunks=(1,), dtype="bool", fill_value=False
@@ -326,13 +318,19 @@ def add_missing_labels(path: str | Path) -> list[str]:
         The names of the columns added.
     """
     root = zarr_module().open_group(str(path), mode="r+")
-    group, added = root["labels"], []
+    return _create_labels(root["labels"], int(root.attrs["count"]), int(root.attrs["shard_size"]))
+
+
+def _create_labels(group, count: int, shard_size: int) -> list[str]:
+    """Create the :data:`LABELS` columns that ``group`` lacks (all, in a new store), one
+    value per curve in chunks of a shard; returns their names."""
+    added = []
     for name, (dtype, fill, _) in LABELS.items():
         if name not in group:
             group.create_array(
                 name,
-                shape=(int(root.attrs["count"]),),
-                chunks=(int(root.attrs["shard_size"]),),
+                shape=(count,),
+                chunks=(shard_size,),
                 dtype=str if dtype == "str" else dtype,
                 fill_value=fill,
             )

@@ -165,16 +165,15 @@ def refine(
         ]
         new = evaluate(probes)
         for i, (c, t, v) in enumerate(zip(curves, todo, new, strict=True)):
-            added = np.full((len(c.rows), len(frac)), np.nan)
-            added[t] = np.asarray(v, np.float64).reshape(len(t), len(frac))
-            if k <= NESTED_LEVELS:
+            got = np.asarray(v, np.float64).reshape(len(t), len(frac))
+            if k <= NESTED_LEVELS:  # kept: the next nested level reuses these instants
+                added = np.full((len(c.rows), len(frac)), np.nan)
+                added[t] = got
                 values[i].append(added)
+                got = np.concatenate([x[t] for x in values[i]], axis=1)
             if not len(t):
                 continue
-            if k <= NESTED_LEVELS:
-                m = np.concatenate([x[t] for x in values[i]], axis=1) @ stacked_weights(k)
-            else:
-                m = added[t] @ stacked_weights(k)
+            m = got @ stacked_weights(k)
             err = np.abs(m - mean[i][t]) / divisor(k, c.resolved_level)
             mean[i][t], level[i][t], error[i][t] = m, k, err
             if least_levels:
