@@ -4,14 +4,19 @@
 phases; :func:`reversed_starts` starts again about good optima (reversed pole,
 same pole, phases spread); :func:`distinct_modes` clusters optima;
 :func:`refinement_set` picks those refined on the exact model (and the bases of
-the reversed solve): the best, and the best of each other period.
+the reversed solve): the best, and the best of each other period;
+:func:`match_offset` sets a start's Δm and :func:`better_half_turn` picks a start
+or its twin half a turn on.
 """
 
 from __future__ import annotations
 
+import jax
 import numpy as np
 
-from jaxlc.inference.model import angle_between_deg
+from jaxlc.inference.data import FitData, soft_clip
+from jaxlc.inference.model import SpinModel, angle_between_deg, to_device
+from jaxlc.xla import filter_jit
 
 
 def start_points(
@@ -103,3 +108,38 @@ def refinement_set(candidates: list, best: int, extra: int, period_tol: float = 
             chosen.append(c)
             extra -= 1
     return sorted(chosen, key=lambda c: c[1])
+
+
+@filter_jit
+def batch_magnitudes(model: SpinModel, thetas):
+    """(K, N) magnitudes of ``model`` at (K, P) device coordinates (any fit model)."""
+    return jax.vmap(model.magnitudes)(thetas)
+
+
+def match_offset(model: SpinModel, data: FitData, starts: np.ndarray) -> np.ndarray:
+    """Set each start's Δm (LM coordinate ``model.dmag_index``) to the median offset
+    between data and model (any fit model: :class:`SpinModel`, the tumble's)."""
+    m = np.asarray(batch_magnitudes(model, model.to_device(starts)), np.float64)
+    out = starts.copy()
+    out[:, model.dmag_index] = np.median(soft_clip(data.mag, data.limit_mag)[None, :] - m, axis=1)
+    return out
+
+
+def better_half_turn(model: SpinModel, data: FitData, thetas: np.ndarray) -> np.ndarray:
+    """Each start (K, 6) or its twin half a turn on (phase + π), whichever fits better.
+
+    A body symmetric about its spin axis but for details that only the exact model
+    has (shadows, an anisotropic panel: the search model merges facets and drops
+    shadows) has optima half a turn apart that the search cannot tell apart; the
+    refinement does not cross from one to the other (S6: the wrong twin fitted
+    13 mmag rms where the right one fits 0.1 mmag, and won no weight).
+    """
+    twins = thetas.copy()
+    twins[:, 4] += np.pi
+    both = np.concatenate([thetas, twins])
+    m = np.asarray(batch_magnitudes(model, to_device(model, both)), np.float64)
+    sigma = np.where(data.mag_err > 0, data.mag_err, 1.0)
+    chi2 = np.sum(((m - soft_clip(data.mag, data.limit_mag)[None, :]) / sigma) ** 2, axis=1)
+    k = len(thetas)
+    take_twin = chi2[k:] < chi2[:k]
+    return np.where(take_twin[:, None], twins, thetas)

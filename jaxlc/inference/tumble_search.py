@@ -34,12 +34,8 @@ from jaxlc.inference.data import FitData
 from jaxlc.inference.harmonics import HarmonicModel, bic, median_step_s
 from jaxlc.inference.mcmc import unit_vectors
 from jaxlc.inference.model import angle_between_deg
-from jaxlc.inference.search import (
-    SEARCH_MAX_SUBSAMPLES,
-    SolveReport,
-    least_squares,
-    match_offset,
-)
+from jaxlc.inference.search import SEARCH_MAX_SUBSAMPLES, SolveReport, least_squares
+from jaxlc.inference.search_starts import match_offset
 from jaxlc.inference.tumble_model import (
     N_TUMBLE_LM,
     angular_momentum_radec_deg,
