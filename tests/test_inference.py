@@ -488,3 +488,17 @@ def test_dense_jvp_matches_plain_autodiff():
     np.testing.assert_allclose(
         np.asarray(v2), np.asarray(v1), rtol=1e-4, atol=1e-4 * float(jnp.max(jnp.abs(v1)))
     )
+
+
+@pytest.mark.parametrize(
+    "starts, most, expected", [(1024, 53, 32), (13, 20, 13), (13, 1, 1), (97, 50, 50), (1, 5, 1)]
+)
+def test_solver_blocks_leave_no_remainder_unless_padding_is_cheaper(starts, most, expected):
+    """lax.map compiles a second body for a remainder block: the LM blocks divide the
+    starts where a divisor of at least half the memory bound exists (else the starts
+    are padded)."""
+    from jaxlc.inference.search import block_size
+
+    b = block_size(starts, most)
+    assert b == expected and b <= max(most, 1)
+    assert starts % b == 0 or 2 * max(d for d in range(1, b) if starts % d == 0) < b
