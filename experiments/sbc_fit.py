@@ -148,6 +148,7 @@ def case(scene, geo, k: int, settings: FitSettings, noise_mag: float = 0.05) -> 
         "pole_in_90": pole_rank <= 0.9,
         "modes": len(r["modes"]),
         "modes_sampled": int(s["mode"].nunique()),
+        "method": r["diagnostics"]["method"],
         "chain_length_tau": r["diagnostics"]["chain_length_tau"],
         "acceptance": r["diagnostics"]["acceptance"],
         "seconds": seconds,
@@ -266,6 +267,18 @@ def main(argv=None) -> pd.DataFrame:
         "coverage_pole_90": float(df.pole_in_90.mean()),
         "median_seconds": float(df_all.seconds.median()),
     }
+    # per sampler of the best mode (importance sampling where the Laplace proposal fits)
+    method = (
+        df["method"]
+        if "method" in df
+        else df.chain_length_tau.isna().map({True: "importance", False: "emcee"})
+    )
+    for name, part in df.groupby(method):
+        summary[f"coverage_{name}"] = (
+            f"{len(part)} cases: period {part.period_in_50.mean():.2f} / "
+            f"{part.period_in_90.mean():.2f}, pole {part.pole_in_50.mean():.2f} / "
+            f"{part.pole_in_90.mean():.2f}"
+        )
     print(summary)
     return df_all
 

@@ -386,8 +386,13 @@ def multistart(
     log(r2.describe())
     init = np.stack([c[0] for c in candidates])
     exact = spin_model(scene, data, float(np.exp(init[:, 3].min())), exact=True)
-    init = better_half_turn(exact, data, init)
-    ceiling = refine_steps + POLISH_STEPS  # one compilation for both stages
+    ceiling = refine_steps + POLISH_STEPS  # one compilation for the twins and both stages
+
+    def chi2(starts):  # at the starts themselves: no steps
+        none = np.zeros((len(starts), 2), np.int64)
+        return least_squares(exact, data, starts, ceiling, "", True, none)[1]
+
+    init = better_half_turn(init, chi2)
     first = np.tile([refine_steps, STALL_STEPS], (len(init), 1))
     refined, rcost, r3 = least_squares(exact, data, init, ceiling, "refine", True, first)
     log(r3.describe())

@@ -15,7 +15,7 @@ import jax
 import numpy as np
 
 from jaxlc.inference.data import FitData, soft_clip
-from jaxlc.inference.model import SpinModel, angle_between_deg, to_device
+from jaxlc.inference.model import SpinModel, angle_between_deg
 from jaxlc.xla import filter_jit
 
 
@@ -125,8 +125,9 @@ def match_offset(model: SpinModel, data: FitData, starts: np.ndarray) -> np.ndar
     return out
 
 
-def better_half_turn(model: SpinModel, data: FitData, thetas: np.ndarray) -> np.ndarray:
-    """Each start (K, 6) or its twin half a turn on (phase + π), whichever fits better.
+def better_half_turn(thetas: np.ndarray, chi2) -> np.ndarray:
+    """Each start (K, 6) or its twin half a turn on (phase + π), whichever fits better
+    by ``chi2``: callable((K, 6) starts) → (K,) χ² on the exact model.
 
     A body symmetric about its spin axis but for details that only the exact model
     has (shadows, an anisotropic panel: the search model merges facets and drops
@@ -136,10 +137,5 @@ def better_half_turn(model: SpinModel, data: FitData, thetas: np.ndarray) -> np.
     """
     twins = thetas.copy()
     twins[:, 4] += np.pi
-    both = np.concatenate([thetas, twins])
-    m = np.asarray(batch_magnitudes(model, to_device(model, both)), np.float64)
-    sigma = np.where(data.mag_err > 0, data.mag_err, 1.0)
-    chi2 = np.sum(((m - soft_clip(data.mag, data.limit_mag)[None, :]) / sigma) ** 2, axis=1)
-    k = len(thetas)
-    take_twin = chi2[k:] < chi2[:k]
+    take_twin = chi2(twins) < chi2(thetas)
     return np.where(take_twin[:, None], twins, thetas)
