@@ -71,7 +71,9 @@ def pass_geometry() -> pd.DataFrame:
     return jaxlc.read_geometry(GEOMETRY)
 
 
-def case(scene, geo, k: int, settings: FitSettings, noise_mag: float = 0.05) -> dict:
+def draw(scene, geo, k: int, noise_mag: float = 0.05):
+    """Case ``k``'s truth and data: (truth scene, noisy light curve, pole unit vector,
+    RA, Dec, period, signal χ² of the noise-free curve)."""
     rng = np.random.default_rng(1000 + k)
     u = rng.normal(size=3)
     u /= np.linalg.norm(u)
@@ -83,6 +85,11 @@ def case(scene, geo, k: int, settings: FitSettings, noise_mag: float = 0.05) -> 
     lc = jaxlc.render(truth, geo)  # as users render: 1 s exposures, motion blur
     signal = signal_chi2(lc, noise_mag)
     lc["mag"] = lc["mag"] + noise_mag * rng.standard_normal(len(lc))
+    return truth, lc, u, ra, dec, period, signal
+
+
+def case(scene, geo, k: int, settings: FitSettings, noise_mag: float = 0.05) -> dict:
+    _truth, lc, u, ra, dec, period, signal = draw(scene, geo, k, noise_mag)
     t0 = time.perf_counter()
     try:
         r = fit_spin(scene, lc, geo, settings)
