@@ -247,8 +247,9 @@ def least_squares(
     weight = jnp.asarray(1.0 / sigma, jnp.float32)
     per_start = len(model.inputs.weight) * model.obj.n_facets
     batch = block_size(len(starts), 2**21 // per_start)
-    if budget is None:
-        budget = np.tile([max_steps, STALL_STEPS], (len(starts), 1))
+    budget = np.asarray(
+        np.tile([max_steps, STALL_STEPS], (len(starts), 1)) if budget is None else budget
+    )
     k, pad = len(starts), -len(starts) % batch  # padded with copies of the last start
     padded = np.concatenate([starts, np.repeat(starts[-1:], pad, axis=0)])
     steps = np.concatenate([budget, np.zeros((pad, 2), np.int64)])
@@ -263,14 +264,14 @@ def least_squares(
     converged, at_limit = np.asarray(converged), np.asarray(at_limit)
     failed = ~np.isfinite(cost) | ~np.all(np.isfinite(theta), axis=1) | ~(converged | at_limit)
     cost = np.where(failed, np.inf, cost)
-    run = np.asarray(budget)[:, 0] > 0  # a start without steps is only carried along
+    run = budget[:, 0] > 0  # a start without steps is only carried along
     report = SolveReport(
         stage=stage,
         solves=int(np.count_nonzero(run)),
         converged=int(np.count_nonzero(converged & ~failed & run)),
         max_steps=int(np.count_nonzero(at_limit & ~failed & run)),
         failed=int(np.count_nonzero(failed & run)),
-        steps=int(np.max(np.asarray(budget)[:, 0], initial=0)) if stall else max_steps,
+        steps=int(np.max(budget[:, 0], initial=0)) if stall else max_steps,
         samples=model.n,
         subsamples=model.subsamples,
         facets=model.obj.n_facets,
@@ -293,7 +294,10 @@ def polish(
     the steps, case 91 the later stop.
     """
     if not np.any(np.isfinite(cost)):
-        none = SolveReport("polish", 0, 0, 0, 0, 0, model.n, model.subsamples, model.obj.n_facets)
+        none = SolveReport(
+            stage="polish", solves=0, converged=0, max_steps=0, failed=0, steps=0,
+            samples=model.n, subsamples=model.subsamples, facets=model.obj.n_facets,
+        )  # fmt: skip
         return theta, cost, none
     scale = 1.0
     if np.all(data.mag_err == 0):
