@@ -46,6 +46,7 @@ import numpy as np
 from jaxlc.body.attitude import Spin, phase_at_offset_deg, pole_vector, reference_direction
 from jaxlc.body.mesh import Facets
 from jaxlc.inference.data import FitData, soft_clip
+from jaxlc.rendering.attitude_jacobian import attitude_intensity
 from jaxlc.rendering.kernel import KernelInputs, SpaceObject, exposure_intensity
 from jaxlc.rendering.prepare import Prepared, adapt, prepare
 from jaxlc.rendering.render import evaluate_instants
@@ -131,12 +132,18 @@ class SpinModel(FitModel):
         body_axis, body_ref: (3,) spin axis and reference direction in the body frame.
         adapted: whether the exposures' instants were chosen at a spin
             (:func:`spin_model`'s ``theta``), not the plan's fixed count.
+        turned: differentiate through body turns
+            (:func:`~jaxlc.rendering.attitude_jacobian.attitude_intensity`; exact
+            models: S4's Jacobian 15–25 % faster) or plain forward mode (the search's
+            coarse model, where the fused forward mode is faster: 41 vs 47 ms for 32
+            starts of S4).
     """
 
     period_ref_s: jax.Array
     body_axis: jax.Array
     body_ref: jax.Array
     adapted: bool = eqx.field(static=True, default=False)
+    turned: bool = eqx.field(static=True, default=False)
 
     def to_device(self, theta) -> jax.Array:
         """Host LM coordinates (…, 6) → device coordinates (:func:`to_device`)."""
@@ -164,8 +171,10 @@ class SpinModel(FitModel):
     def intensity(self, theta_lm, chunk=None):
         """(N,) exposure-mean I/E (m² sr⁻¹) for device LM coordinates ``theta_lm``
         (6,) (:func:`to_device`)."""
-        spin = self.attitude(theta_lm[:3], theta_lm[3], theta_lm[4])
-        obj = eqx.tree_at(lambda o: o.attitude, self.obj, spin)
+        spin = lambda t: self.attitude(t[:3], t[3], t[4])  # noqa: E731
+        if self.turned:
+            return attitude_intensity(self.obj, self.inputs, spin, theta_lm, chunk)
+        obj = eqx.tree_at(lambda o: o.attitude, self.obj, spin(theta_lm))
         return exposure_intensity(obj, self.inputs, chunk)
 
 
@@ -222,6 +231,7 @@ def spin_model(
         period_ref_s=f32(period_ref),
         body_axis=f32(b),
         body_ref=f32(reference_direction(b)),
+        turned=exact,
     )
     if theta is None or not prep.adaptive:
         return model

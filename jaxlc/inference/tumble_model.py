@@ -37,7 +37,6 @@ from __future__ import annotations
 import math
 from typing import ClassVar
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -47,7 +46,7 @@ from jaxlc.body.free_body import torque_free_motion
 from jaxlc.body.tumble import Tumble
 from jaxlc.inference.data import FitData
 from jaxlc.inference.model import FitModel, fit_preparation, intensity_floor_m2_sr
-from jaxlc.rendering.kernel import exposure_intensity
+from jaxlc.rendering.attitude_jacobian import attitude_intensity
 from jaxlc.rendering.prepare import adapt, kernel_inputs
 from jaxlc.rendering.render import evaluate_instants
 from jaxlc.scene import Scene
@@ -115,8 +114,7 @@ class TumbleModel(FitModel):
         return Tumble(inertia, theta[2:5] * self.rate_ref_rad_s, q)
 
     def intensity(self, theta_lm, chunk=None):
-        obj = eqx.tree_at(lambda o: o.attitude, self.obj, self.attitude(theta_lm))
-        return exposure_intensity(obj, self.inputs, chunk)
+        return attitude_intensity(self.obj, self.inputs, self.attitude, theta_lm, chunk)
 
     def to_device(self, theta) -> jax.Array:
         return jnp.asarray(np.asarray(theta, np.float64), jnp.float32)

@@ -184,9 +184,14 @@ def exposure_intensity(
         (n_rows,) Σ_k w_k I/E(t_k) over the instants k of each exposure.
     """
     i = light_curve_intensity(obj, inputs.times, inputs.sun_dir, inputs.obs_dir, chunk)
-    weighted = i * inputs.weight
+    return exposure_mean(i, inputs)
+
+
+def exposure_mean(values: Float[Array, "M ..."], inputs: KernelInputs) -> Float[Array, "N ..."]:
+    """Σ_k w_k values_k over the instants k of each exposure: (M, …) → (n_rows, …)."""
+    weighted = values * inputs.weight.reshape(-1, *(1,) * (values.ndim - 1))
     if inputs.subsamples is not None:
-        return weighted.reshape(inputs.n_rows, inputs.subsamples).sum(axis=1)
+        return weighted.reshape(inputs.n_rows, inputs.subsamples, *values.shape[1:]).sum(axis=1)
     return jax.ops.segment_sum(
         weighted, inputs.row, num_segments=inputs.n_rows, indices_are_sorted=True
     )
