@@ -37,34 +37,64 @@ def value_and_jacobian(model: SpinModel, x5):
 
 
 #: Gauss–Newton steps that move a mode's centre to the sampled model's optimum.
-RECENTRE_STEPS = 3
+RECENTRE_STEPS = 6
+#: A Gauss–Newton step that does not lower χ² is halved up to this many times.
+RECENTRE_HALVINGS = 4
+#: Recentring stops once a step lowers χ² by less than this.
+RECENTRE_TOLERANCE_CHI2 = 0.01
+
+
+def gauss_newton(at, x: np.ndarray, sigma: np.ndarray, project=None):
+    """Damped Gauss–Newton from ``x`` (P,): minimise Σ (r/σ)² with ``at(x)`` → (r (N,),
+    ∂r/∂x (N, P)) and ``sigma`` (N,) held fixed. A step that does not lower χ² is
+    halved (:data:`RECENTRE_HALVINGS` times); it stops when none does, when χ² falls by
+    less than :data:`RECENTRE_TOLERANCE_CHI2`, or after :data:`RECENTRE_STEPS` steps.
+    ``project`` maps a trial point into the coordinates' domain.
+
+    A full step from a point near a curved optimum can overshoot: a tumble fit's first
+    step raised χ² 561 → 600, the centre stayed 2.7 σ from the posterior's mean and the
+    chain accepted 9 % of its proposals (τ 60–80 steps instead of 20).
+
+    Returns:
+        The point, its residuals and Jacobian.
+    """
+    project = project or (lambda y: y)
+    r, jac = at(x)
+    chi2 = float(np.sum((r / sigma) ** 2))
+    for _ in range(RECENTRE_STEPS):
+        step, *_ = np.linalg.lstsq(jac / sigma[:, None], -r / sigma, rcond=None)
+        for _halving in range(RECENTRE_HALVINGS + 1):
+            trial = project(x + step)
+            r2, jac2 = at(trial)
+            chi2_2 = float(np.sum((r2 / sigma) ** 2))
+            if np.isfinite(chi2_2) and chi2_2 < chi2:
+                break
+            step = 0.5 * step
+        else:
+            break
+        x, r, jac, gain, chi2 = trial, r2, jac2, chi2 - chi2_2, chi2_2
+        if gain < RECENTRE_TOLERANCE_CHI2:
+            break
+    return x, r, jac
 
 
 def recentre(model: SpinModel, data: FitData, centre: np.ndarray, sigma: np.ndarray):
-    """Gauss–Newton steps from ``centre`` (MCMC coordinates) on ``model``: the mode's
-    optimum on the model sampled, which may differ a little from the model it was
-    found on (e.g. sub-exposures chosen at the mode). Returns the centre (only
-    steps that lower χ² are taken), its magnitudes' residuals and the Jacobian there."""
+    """The mode's optimum on the model sampled (:func:`gauss_newton` from ``centre``, MCMC
+    coordinates), which may differ a little from the model it was found on (e.g.
+    sub-exposures chosen at the mode). Returns the centre, its magnitudes' residuals
+    and the Jacobian there."""
     mag = soft_clip(data.mag, data.limit_mag)
 
-    def at(c):
+    def at(x5):
+        c = np.concatenate([x5, centre[5:]])
         m, j = value_and_jacobian(model, to_device(model, c, index=2)[:5])
         return np.asarray(m, np.float64) - mag, np.asarray(j, np.float64)
 
-    r, jac = at(centre)
-    chi2 = float(np.sum((r / sigma) ** 2))
-    for _ in range(RECENTRE_STEPS):
-        jw = jac / sigma[:, None]
-        step, *_ = np.linalg.lstsq(jw, -r / sigma, rcond=None)
-        trial = centre.copy()
-        trial[:5] += step
-        trial[1] = np.clip(trial[1], -0.999999, 0.999999)
-        r2, jac2 = at(trial)
-        chi2_2 = float(np.sum((r2 / sigma) ** 2))
-        if not (np.isfinite(chi2_2) and chi2_2 < chi2):
-            break
-        centre, r, jac, chi2 = trial, r2, jac2, chi2_2
-    return centre, r, jac
+    def project(x5):
+        return np.concatenate([x5[:1], np.clip(x5[1:2], -0.999999, 0.999999), x5[2:]])
+
+    x5, r, jac = gauss_newton(at, centre[:5].copy(), sigma, project)
+    return np.concatenate([x5, centre[5:]]), r, jac
 
 
 def noise_moments(residuals: np.ndarray, err2: np.ndarray, n_params: int) -> tuple[float, float]:

@@ -19,7 +19,7 @@ import pandas as pd
 
 from jaxlc.inference import mcmc
 from jaxlc.inference.data import FitData, soft_clip
-from jaxlc.inference.laplace import NOISE_BOUNDS_MAG, noise_moments
+from jaxlc.inference.laplace import NOISE_BOUNDS_MAG, gauss_newton, noise_moments
 from jaxlc.inference.offset_marginal import OffsetConditionals, integrate_offset
 from jaxlc.inference.spin_posterior import DMAG_BOUNDS, PERIOD_PRIOR_FACTOR
 from jaxlc.inference.tumble_model import (
@@ -123,18 +123,15 @@ def _value_and_jacobian(model: TumbleModel, q_mode, x9):
     return value, jac
 
 
-#: Gauss–Newton steps that move a mode's centre to the sampled model's optimum.
-RECENTRE_STEPS = 3
-
-
 def initial_ball(model: TumbleModel, data: FitData, mode: TumbleMode, walkers: int, rng):
     """Walkers (W, 10) from the Laplace approximation at a mode, its centre (10,), the
     covariance (10, 10) and q_mode.
 
-    The centre is first moved by up to :data:`RECENTRE_STEPS` Gauss–Newton steps to
-    the optimum of ``model`` (the sampled model's sub-exposures are chosen at the
-    mode), weighting the residuals by the data's errors and their excess scatter (at
-    least the prior's floor); covariance σ² (JᵀJ)⁻¹ of the first nine coordinates;
+    The centre is first moved to the optimum of ``model`` (the sampled model's
+    sub-exposures are chosen at the mode) by damped Gauss–Newton
+    (:func:`~jaxlc.inference.laplace.gauss_newton`), weighting the residuals by the
+    data's errors and the excess scatter at the mode (at least the prior's floor);
+    covariance σ² (JᵀJ)⁻¹ of the first nine coordinates;
     ln σ gets the mean and variance of its own posterior given the residuals
     (:func:`~jaxlc.inference.laplace.noise_moments`).
     """
@@ -145,20 +142,15 @@ def initial_ball(model: TumbleModel, data: FitData, mode: TumbleMode, walkers: i
 
     def at(x9):
         m, jac = _value_and_jacobian(model, q, jnp.asarray(x9, jnp.float32))
-        r = np.asarray(m, np.float64) - mag
-        noise = math.sqrt(max(float(np.mean(r**2 - err2)), NOISE_BOUNDS_MAG[0] ** 2))
-        sigma = np.sqrt(err2 + noise**2)
-        return r, np.asarray(jac, np.float64), sigma, float(np.sum((r / sigma) ** 2))
+        return np.asarray(m, np.float64) - mag, np.asarray(jac, np.float64)
 
-    x9 = centre[:9].copy()
-    r, jac, sigma, chi2 = at(x9)
-    for _ in range(RECENTRE_STEPS):
-        step, *_ = np.linalg.lstsq(jac / sigma[:, None], -r / sigma, rcond=None)
-        got = at(x9 + step)
-        if not (np.isfinite(got[3]) and got[3] < chi2):
-            break
-        x9 = x9 + step
-        r, jac, sigma, chi2 = got
+    def sigma_of(r):  # the data's errors and the residuals' excess scatter
+        noise = math.sqrt(max(float(np.mean(r**2 - err2)), NOISE_BOUNDS_MAG[0] ** 2))
+        return np.sqrt(err2 + noise**2)
+
+    r, _ = at(centre[:9])
+    x9, r, jac = gauss_newton(at, centre[:9].copy(), sigma_of(r))
+    sigma = sigma_of(r)
     centre[:9] = x9
     centre[9], noise_var = noise_moments(r, err2, N_TUMBLE_MC - 1)
     jw = jac / sigma[:, None]
