@@ -44,12 +44,13 @@ RECENTRE_HALVINGS = 4
 RECENTRE_TOLERANCE_CHI2 = 0.01
 
 
-def gauss_newton(at, x: np.ndarray, sigma: np.ndarray, project=None):
+def gauss_newton(at, x: np.ndarray, sigma: np.ndarray, project=None, start=None):
     """Damped Gauss–Newton from ``x`` (P,): minimise Σ (r/σ)² with ``at(x)`` → (r (N,),
     ∂r/∂x (N, P)) and ``sigma`` (N,) held fixed. A step that does not lower χ² is
     halved (:data:`RECENTRE_HALVINGS` times); it stops when none does, when χ² falls by
     less than :data:`RECENTRE_TOLERANCE_CHI2`, or after :data:`RECENTRE_STEPS` steps.
-    ``project`` maps a trial point into the coordinates' domain.
+    ``project`` maps a trial point into the coordinates' domain; ``start``: ``at(x)``
+    when the caller has it already (not evaluated again).
 
     A full step from a point near a curved optimum can overshoot: a tumble fit's first
     step raised χ² 561 → 600, recentring stopped 2.7 σ from the posterior's mean and the
@@ -60,7 +61,7 @@ def gauss_newton(at, x: np.ndarray, sigma: np.ndarray, project=None):
         The point, its residuals and Jacobian.
     """
     project = project or (lambda y: y)
-    r, jac = at(x)
+    r, jac = at(x) if start is None else start
     chi2 = float(np.sum((r / sigma) ** 2))
     for _ in range(RECENTRE_STEPS):
         step, *_ = np.linalg.lstsq(jac / sigma[:, None], -r / sigma, rcond=None)

@@ -148,8 +148,8 @@ def initial_ball(model: TumbleModel, data: FitData, mode: TumbleMode, walkers: i
         noise = math.sqrt(max(float(np.mean(r**2 - err2)), NOISE_BOUNDS_MAG[0] ** 2))
         return np.sqrt(err2 + noise**2)
 
-    r, _ = at(centre[:9])
-    x9, r, jac = gauss_newton(at, centre[:9].copy(), sigma_of(r))
+    first = at(centre[:9])  # σ from the mode's own residuals, held through the steps
+    x9, r, jac = gauss_newton(at, centre[:9].copy(), sigma_of(first[0]), start=first)
     sigma = sigma_of(r)
     centre[:9] = x9
     centre[9], noise_var = noise_moments(r, err2, N_TUMBLE_MC - 1)
