@@ -178,12 +178,16 @@ class SpinModel(FitModel):
         return exposure_intensity(obj, self.inputs, chunk)
 
 
+#: Normal bins of the search model's merged facets (:func:`coarsen_facets`).
+SEARCH_DIRECTIONS = 128
+
+
 def spin_model(
     scene: Scene,
     data: FitData,
     period_s: float,
     exact: bool = True,
-    directions: int = 128,
+    directions: int = SEARCH_DIRECTIONS,
     max_subsamples: int | None = None,
     floor: bool = True,
     theta=None,
@@ -246,7 +250,7 @@ def fit_preparation(
     trial: Scene,
     data: FitData,
     exact: bool = True,
-    directions: int = 128,
+    directions: int = SEARCH_DIRECTIONS,
     max_subsamples: int | None = None,
     tolerance_mag: float | None = None,
 ) -> Prepared:
