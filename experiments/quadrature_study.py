@@ -12,13 +12,10 @@ D_k = (n_k/n_{k−1})² − 1: 8 for midpoints) and cap rule (at most 3 ×
 * **midpoint** (the rule before 12-2026): first level from the sharpest feature
   *including* shadow edges (instants no farther apart than its scale), D = 8;
 * **patterson** (the default now): first level from lobes only (largest gap
-  within the lobe's scale σ), D_k once the level's gaps are within σ/2, 1 before,
-  each exposure starting at the level its own possible glints need
-  (:mod:`jaxlc.rendering.glints`) — the same as :func:`jaxlc.render`, whose
-  refinement is also run, so the replay is checked against the code; and four
-  variants of it: the whole curve starting at its sharpest lobe's level (the rule
-  before 12-2026), D_k throughout, D = 1 throughout (ε = |ΔQ|), and the first level
-  at gaps within σ/2 (the last three with the curve's start).
+  within the lobe's scale σ), D_k once the level's gaps are within σ/2, 1 before
+  — the same as :func:`jaxlc.render`, whose refinement is also run, so the replay
+  is checked against the code; and three variants of it: D_k throughout, D = 1 throughout
+  (ε = |ΔQ|), and the first level at gaps within σ/2.
 
 Also the *oracle*: per exposure, the fewest instants of each family from which
 every finer level is within 1 mmag of the reference — what any error estimate
@@ -47,9 +44,8 @@ from sbc_fit import pass_geometry  # noqa: E402
 import jaxlc  # noqa: E402
 from jaxlc.rendering.adaptive import MAG_PER_REL, first_level_for, max_level_for  # noqa: E402
 from jaxlc.rendering.exposures import probe_instants  # noqa: E402
-from jaxlc.rendering.glints import start_levels  # noqa: E402
 from jaxlc.rendering.patterson import level_count, level_rule  # noqa: E402
-from jaxlc.rendering.prepare import adapt, prepare, probe_inputs  # noqa: E402
+from jaxlc.rendering.prepare import adapt, prepare  # noqa: E402
 from jaxlc.rendering.render import evaluate_instants  # noqa: E402
 
 OUT = HERE / "results" / "quadrature_study.csv"
@@ -72,16 +68,15 @@ def values_at(prep, fractions) -> np.ndarray:
     return evaluate_instants([(prep, probe)])[0].reshape(len(rows), len(fractions))
 
 
-def replay(q: np.ndarray, counts, first, floor: float, resolved=0):
+def replay(q: np.ndarray, counts, first: int, floor: float, resolved: int = 0):
     """Instants and estimate per exposure of the adaptive scheme over level estimates
     q (N, K) with ``counts`` instants per level (the law of
-    :func:`jaxlc.rendering.adaptive.refine`: D_k from level ``resolved`` on, else 1;
-    ``first`` and ``resolved`` one for the curve or (N,) per exposure)."""
+    :func:`jaxlc.rendering.adaptive.refine`: D_k from level ``resolved`` on, else 1)."""
     tol = TOLERANCE_MAG / MAG_PER_REL
     n, k_max = q.shape
     accept = np.zeros((n, k_max), bool)
     for k in range(1, k_max):
-        law = np.where(k >= np.asarray(resolved), (counts[k] / counts[k - 1]) ** 2 - 1.0, 1.0)
+        law = (counts[k] / counts[k - 1]) ** 2 - 1.0 if k >= resolved else 1.0
         err = np.abs(q[:, k] - q[:, k - 1]) / law
         accept[:, k] = (k >= first) & (err <= tol * np.maximum(q[:, k], floor))
     accept[:, -1] = True
@@ -137,19 +132,15 @@ def study_curve(label: str, k: int, geo: pd.DataFrame, rng) -> list[dict]:
     done = adapt([prep], evaluate_instants)[0].refinement  # what jaxlc.render does
     code_err = 1e3 * MAG_PER_REL * np.abs(done.intensity[keep] - ref[keep]) / scale[keep]
     rows = []
-    resolved = first_level_for(blur.sweep_rad, blur.start_scale / 2)
+    resolved = first_level_for(blur.sweep_rad, blur.start_scale / 2)  # as adapt()
     finer = min(resolved, last_p)
     never = len(p_counts)
-    # as adapt(): each exposure's own start where a lobe would raise the curve's
-    per_exposure = start_levels(prep, lambda probe: probe_inputs(prep, probe, pad=False), last_p)
-    first_e, resolved_e = (np.broadcast_to(x, (len(keep),))[keep] for x in per_exposure)
     for scheme, q, counts, first, law_from in (
         ("midpoint", q_mid, mid_counts, first_mid, 0),
         ("patterson, ε = |ΔQ|", q_p, p_counts, first_p, never),
         ("patterson, D_k throughout", q_p, p_counts, first_p, 0),
         ("patterson, start gap σ/2", q_p, p_counts, finer, 0),
-        ("patterson, curve's start", q_p, p_counts, first_p, resolved),
-        ("patterson", q_p, p_counts, first_e, resolved_e),
+        ("patterson", q_p, p_counts, first_p, resolved),
     ):
         inst, est = replay(q[keep], counts, first, floor, law_from)
         err = 1e3 * MAG_PER_REL * np.abs(est - ref[keep]) / scale[keep]
@@ -161,7 +152,7 @@ def study_curve(label: str, k: int, geo: pd.DataFrame, rng) -> list[dict]:
                 "curve": k,
                 "period_s": period,
                 "scheme": scheme,
-                "first_level_instants": float(np.mean(np.asarray(counts)[first])),
+                "first_level_instants": counts[first],
                 "instants_per_exposure": float(inst.mean()),
                 "oracle_instants": float(best.mean()),
                 "p95_mmag": float(np.percentile(err, 95)),
@@ -190,7 +181,7 @@ def main(argv=None) -> pd.DataFrame:
                 + "; ".join(
                     f"{r['scheme']} {r['instants_per_exposure']:.1f} inst, "
                     f"max {r['max_mmag']:.2f} mmag"
-                    for r in rows[-6:]
+                    for r in rows[-5:]
                 ),
                 flush=True,
             )

@@ -72,27 +72,17 @@ class Curve:
         rows: (N,) exposures (rows of ``geo``).
         t0_s: the attitude's time origin, seconds after the first row.
         first_level: level of the first error estimate (0: one instant and no
-            refinement; 1: the usual start; see :func:`first_level_for`): one for the
-            curve, or (N,) one per exposure (:mod:`jaxlc.rendering.glints`).
+            refinement; 1: the usual start; see :func:`first_level_for`).
         resolved_level: the first level whose instants resolve the sharpest lobe (gaps
             within half its scale, :func:`first_level_for`): from there on the error
-            law's divisor applies (:func:`divisor`), below it ε = |Q_k − Q_{k−1}|. One
-            for the curve or (N,) one per exposure.
+            law's divisor applies (:func:`divisor`), below it ε = |Q_k − Q_{k−1}|.
     """
 
     geo: GeometryArrays
     rows: np.ndarray
     t0_s: float = 0.0
-    first_level: int | np.ndarray = 1
-    resolved_level: int | np.ndarray = 1
-
-    def per_exposure(self) -> tuple[np.ndarray, np.ndarray]:
-        """(N,) first and (N,) resolved level of each exposure."""
-        n = len(self.rows)
-        return (
-            np.broadcast_to(np.asarray(self.first_level, np.int64), (n,)),
-            np.broadcast_to(np.asarray(self.resolved_level, np.int64), (n,)),
-        )
+    first_level: int = 1
+    resolved_level: int = 1
 
 
 @dataclasses.dataclass(frozen=True)
@@ -163,8 +153,7 @@ def refine(
     for m in mean:
         pos = m[m > 0]
         floor.append(FLOOR_FRACTION * float(np.median(pos)) if len(pos) else 0.0)
-    starts = [c.per_exposure() for c in curves]
-    active = [first > 0 for first, _ in starts]
+    active = [np.full(len(c.rows), c.first_level > 0) for c in curves]
     for k in range(1, max_level + 1):
         todo = [np.flatnonzero(a) for a in active]
         if not any(len(t) for t in todo):
@@ -184,20 +173,19 @@ def refine(
                 got = np.concatenate([x[t] for x in values[i]], axis=1)
             if not len(t):
                 continue
-            first, resolved = starts[i][0][t], starts[i][1][t]
             m = got @ stacked_weights(k)
-            err = np.abs(m - mean[i][t]) / divisor(k, resolved)
+            err = np.abs(m - mean[i][t]) / divisor(k, c.resolved_level)
             mean[i][t], level[i][t], error[i][t] = m, k, err
             if least_levels:
                 by_level[i][t, k] = m
-            done = (k >= first) & (err <= tol * np.maximum(m, floor[i]))
+            done = (k >= c.first_level) & (err <= tol * np.maximum(m, floor[i]))
             active[i][t[done]] = False
     if least_levels:
         for i, a in enumerate(active):
             done = np.flatnonzero(~a & (level[i] > 0))
             lv, m, e = least_level(
                 by_level[i][done], level[i][done], error[i][done], tol, floor[i],
-                starts[i][1][done],
+                curves[i].resolved_level,
             )  # fmt: skip
             level[i][done], mean[i][done], error[i][done] = lv, m, e
     out = []
@@ -220,7 +208,7 @@ def least_level(
     error: np.ndarray,
     tol: float,
     floor,
-    resolved_level: int | np.ndarray = 1,
+    resolved_level: int = 1,
 ):
     """The least level of each exposure that is resolved and close to its refined mean.
 
@@ -238,7 +226,7 @@ def least_level(
         level: (N,) the last level, where the estimated error met the tolerance.
         error: (N,) that estimated error (I/E).
         tol: relative tolerance; floor: the absolute floor of its scale (I/E).
-        resolved_level: the curve's :attr:`Curve.resolved_level` (one, or (N,) per exposure).
+        resolved_level: the curve's :attr:`Curve.resolved_level`.
 
     Returns:
         (N,) levels, (N,) their means and (N,) error bounds |M_l − M_last| + error.
@@ -248,9 +236,8 @@ def least_level(
     bound = np.abs(by_level - ref[:, None]) + error[:, None]
     scale = tol * np.maximum(ref, floor)[:, None]
     est = np.full_like(by_level, np.inf)
-    resolved = np.broadcast_to(np.asarray(resolved_level, np.int64), (len(level),))
-    law = np.stack([divisor(k, resolved) for k in range(1, by_level.shape[1])], axis=1)
-    est[:, 1:] = np.abs(np.diff(by_level, axis=1)) / law
+    law = [divisor(k, resolved_level) for k in range(1, by_level.shape[1])]
+    est[:, 1:] = np.abs(np.diff(by_level, axis=1)) / np.asarray(law)
     if by_level.shape[1] > 1:
         est[:, 0] = np.abs(by_level[:, 1] - by_level[:, 0])
     ok = (bound <= LEAST_LEVEL_MARGIN * scale) & (est <= scale)  # NaN compares False
@@ -259,15 +246,14 @@ def least_level(
     return least, by_level[rows, least], bound[rows, least]
 
 
-def divisor(level: int, resolved_level):
-    """The error law's divisor at ``level`` for exposures whose lobes are resolved from
-    ``resolved_level`` (an int or an array: the result has its shape): D_k
-    (:func:`~jaxlc.rendering.patterson.error_divisor`) once the level's instants resolve
-    the sharpest lobe, else 1. A glint between coarse instants does not converge as
-    n⁻²: two unresolved levels can agree to within D_k × the tolerance and both be off
-    (the CubeSat, 43 s spin: 19.8 mmag at a 1 mmag tolerance with D_k throughout, 1.4
-    mmag this way; ``experiments/quadrature_study.py``)."""
-    return np.where(np.asarray(resolved_level) <= level, error_divisor(level), 1.0)
+def divisor(level: int, resolved_level: int) -> float:
+    """The error law's divisor at ``level``: D_k (:func:`~jaxlc.rendering.patterson.
+    error_divisor`) once the level's instants resolve the sharpest lobe, else 1. A glint
+    between coarse instants does not converge as n⁻²: two unresolved levels can agree
+    to within D_k × the tolerance and both be off (the CubeSat, 43 s spin: 19.8 mmag
+    at a 1 mmag tolerance with D_k throughout, 1.4 mmag this way;
+    ``experiments/quadrature_study.py``)."""
+    return error_divisor(level) if level >= resolved_level else 1.0
 
 
 def first_level_for(sweep_rad: float, scale_rad: float) -> int:

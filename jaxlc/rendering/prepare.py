@@ -41,9 +41,14 @@ from jaxlc.body.mesh import Facets
 from jaxlc.body.shadow import ShadowSettings, shadow_data
 from jaxlc.body.shadow_lookup import shadow_table
 from jaxlc.errors import JaxlcError
-from jaxlc.rendering.adaptive import Curve, Refinement, max_level_for, refine
+from jaxlc.rendering.adaptive import (
+    Curve,
+    Refinement,
+    first_level_for,
+    max_level_for,
+    refine,
+)
 from jaxlc.rendering.exposures import Exposures, exposure_instants
-from jaxlc.rendering.glints import start_levels
 from jaxlc.rendering.kernel import KernelInputs, SpaceObject
 from jaxlc.rendering.observation import GeometryArrays, as_geometry
 from jaxlc.rendering.options import RenderOptions
@@ -362,9 +367,10 @@ def adapt(
     last = next(iter(level))
     curves = []
     for i in todo:
+        blur = prepared[i].plan.blur
+        first = min(last, first_level_for(blur.sweep_rad, blur.start_scale) + int(least_levels))
+        resolved = first_level_for(blur.sweep_rad, blur.start_scale / 2)
         prep = prepared[i]
-        inputs_of = lambda probe, p=prep: probe_inputs(p, probe, pad=False)  # noqa: E731
-        first, resolved = start_levels(prep, inputs_of, last, int(least_levels))
         curves.append(Curve(prep.geometry, prep.exposures.rows, prep.t0_s, first, resolved))
     found = refine(
         curves,
