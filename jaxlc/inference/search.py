@@ -337,6 +337,17 @@ def polish(
 REFINED_MODES = 12
 
 
+def search_model(scene: Scene, data: FitData, period_s: float) -> SpinModel:
+    """The search's model of ``data`` (a subset): facets merged into
+    :data:`~jaxlc.inference.model.SEARCH_DIRECTIONS` normal bins, no shadows, the
+    sub-exposures of a ``period_s`` spin within the facet-instant budget."""
+    merged = coarsen_facets(scene.body[1], SEARCH_DIRECTIONS).n_facets
+    cap = max(SEARCH_MAX_SUBSAMPLES, SEARCH_FACET_INSTANTS // max(merged, 1))
+    return spin_model(
+        scene, data, period_s, exact=False, directions=SEARCH_DIRECTIONS, max_subsamples=cap
+    )
+
+
 def multistart(
     scene: Scene,
     data: FitData,
@@ -371,12 +382,7 @@ def multistart(
     rng = rng or np.random.default_rng(0)
     log = log or (lambda msg: None)
     sub = data.stratified_subset(search_samples, rng)
-    merged = coarsen_facets(scene.body[1], SEARCH_DIRECTIONS).n_facets
-    cap = max(SEARCH_MAX_SUBSAMPLES, SEARCH_FACET_INSTANTS // max(merged, 1))
-    coarse = spin_model(
-        scene, sub, min(seeds_period_s), exact=False, directions=SEARCH_DIRECTIONS,
-        max_subsamples=cap,
-    )  # fmt: skip
+    coarse = search_model(scene, sub, min(seeds_period_s))
     starts = match_offset(coarse, sub, start_points(seeds_period_s, n_starts, rng))
     theta, cost, r1 = least_squares(coarse, sub, starts, search_steps, "search")
     first = distinct_modes(theta, cost, max_modes=CANDIDATE_FACTOR * max_modes)
