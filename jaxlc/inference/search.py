@@ -337,15 +337,22 @@ def polish(
 REFINED_MODES = 12
 
 
+def search_subsamples(scene: Scene) -> int:
+    """The search models' cap on sub-exposures per exposure for ``scene``'s shape (spin
+    and tumble alike): :data:`SEARCH_FACET_INSTANTS` over its merged facets, at least
+    :data:`SEARCH_MAX_SUBSAMPLES`."""
+    merged = coarsen_facets(scene.body[1], SEARCH_DIRECTIONS).n_facets
+    return max(SEARCH_MAX_SUBSAMPLES, SEARCH_FACET_INSTANTS // max(merged, 1))
+
+
 def search_model(scene: Scene, data: FitData, period_s: float) -> SpinModel:
     """The search's model of ``data`` (a subset): facets merged into
     :data:`~jaxlc.inference.model.SEARCH_DIRECTIONS` normal bins, no shadows, the
-    sub-exposures of a ``period_s`` spin within the facet-instant budget."""
-    merged = coarsen_facets(scene.body[1], SEARCH_DIRECTIONS).n_facets
-    cap = max(SEARCH_MAX_SUBSAMPLES, SEARCH_FACET_INSTANTS // max(merged, 1))
+    sub-exposures of a ``period_s`` spin up to :func:`search_subsamples`."""
     return spin_model(
-        scene, data, period_s, exact=False, directions=SEARCH_DIRECTIONS, max_subsamples=cap
-    )
+        scene, data, period_s, exact=False, directions=SEARCH_DIRECTIONS,
+        max_subsamples=search_subsamples(scene),
+    )  # fmt: skip
 
 
 def multistart(

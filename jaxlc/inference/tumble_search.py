@@ -34,7 +34,7 @@ from jaxlc.inference.data import FitData
 from jaxlc.inference.harmonics import HarmonicModel, bic, median_step_s
 from jaxlc.inference.mcmc import unit_vectors
 from jaxlc.inference.model import angle_between_deg
-from jaxlc.inference.search import SEARCH_MAX_SUBSAMPLES, SolveReport, least_squares
+from jaxlc.inference.search import SolveReport, least_squares, search_subsamples
 from jaxlc.inference.search_starts import match_offset
 from jaxlc.inference.tumble_model import (
     N_TUMBLE_LM,
@@ -334,7 +334,7 @@ def tumble_multistart(
     fastest = starts[np.argmax(np.linalg.norm(starts[:, 2:5], axis=1))]
     sub = data.stratified_subset(search_samples, rng)
     coarse = tumble_model(
-        scene, sub, fastest, rate_ref_rad_s, exact=False, max_subsamples=SEARCH_MAX_SUBSAMPLES
+        scene, sub, fastest, rate_ref_rad_s, exact=False, max_subsamples=search_subsamples(scene)
     )
     starts = match_offset(coarse, sub, starts)
     theta, cost, r1 = least_squares(coarse, sub, starts, search_steps, "search")
