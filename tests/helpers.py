@@ -21,6 +21,19 @@ SCENES = REPO / "jaxlc" / "data" / "scenes"
 DATA = Path(__file__).resolve().parent / "data"
 
 
+def demo_pass(path: Path, start_utc: str, duration_s: float):
+    """The demo's real pass (Falcon 9 R/B 45921 over Mt Stromlo) from ``start_utc`` at
+    1 Hz with 1 s exposures, made by ``jaxlc geometry pass`` into ``path``; its table."""
+    import jaxlc
+    from jaxlc.cli import main as cli
+
+    tle = REPO / "data" / "tle" / "falcon9_rb.tle"
+    args = ["geometry", "pass", "--tle", str(tle), "--norad", "45921", "--site", "mt-stromlo"]
+    args += ["--start", start_utc, "--duration-s", str(duration_s), "--step-s", "1"]
+    assert cli([*args, "--exposure-s", "1", "-o", str(path)]) == 0
+    return jaxlc.read_geometry(path)
+
+
 def radec_unit(ra_deg: float, dec_deg: float) -> np.ndarray:
     """The unit vector (3,) of a right ascension and declination (deg)."""
     ra, dec = math.radians(ra_deg), math.radians(dec_deg)

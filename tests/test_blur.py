@@ -7,7 +7,7 @@ import re
 import numpy as np
 import pandas as pd
 import pytest
-from helpers import REPO, SCENES
+from helpers import SCENES, demo_pass
 
 import jaxlc
 from jaxlc.rendering.blur import choose_subsamples, direction_rate_rad_s
@@ -70,14 +70,7 @@ def test_glint_tail_on_a_slow_cubesat_spin_against_243_subexposures(tmp_path):
     a start at 3 instants, 2.1° apart, missed the fading tail of a glint in all of them
     and the render was 24 mmag off a dense one at a 1 mmag tolerance (SBC case 3); the
     first estimate now comes from instants no farther apart than the lobe."""
-    from jaxlc.cli import main as cli
-
-    geo_csv = tmp_path / "geometry.csv"
-    tle = REPO / "data" / "tle" / "falcon9_rb.tle"
-    args = ["geometry", "pass", "--tle", str(tle), "--norad", "45921", "--site", "mt-stromlo"]
-    args += ["--start", "2020-08-10T18:05:00Z", "--duration-s", "300", "--step-s", "1"]
-    assert cli([*args, "--exposure-s", "1", "-o", str(geo_csv)]) == 0
-    geo = jaxlc.read_geometry(geo_csv)
+    geo = demo_pass(tmp_path / "geometry.csv", "2020-08-10T18:05:00Z", 300)
     scene = jaxlc.load_scene(SCENES / "s5_cubesat.toml").with_spin(
         57.22657064470287, 186.72974609942207, -54.167065800225792, 270.7606302033877,
         pd.Timestamp(geo["utc"].iloc[0]) - pd.Timedelta(seconds=300),

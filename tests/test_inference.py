@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from helpers import REPO
+from helpers import demo_pass
 
 import jaxlc
 from jaxlc.errors import JaxlcError, TableError
@@ -176,17 +176,11 @@ def test_search_model_holds_the_cubesat_at_its_true_spin(tmp_path):
     spin, 1.8° glints) the search model with 8 sub-exposures missed the noise-free render
     by 0.22 mag rms at the true spin — more than wrong poles — and the fit answered a pole
     124° off with weight 1. At the truth it must now hold the render within 0.05 mag."""
-    from jaxlc.cli import main as cli
     from jaxlc.inference.data import fit_data
     from jaxlc.inference.model import to_device, truth_theta
     from jaxlc.inference.search import search_model
 
-    geo_csv = tmp_path / "geometry.csv"
-    tle = REPO / "data" / "tle" / "falcon9_rb.tle"
-    args = ["geometry", "pass", "--tle", str(tle), "--norad", "45921", "--site", "mt-stromlo"]
-    args += ["--start", "2020-08-10T18:00:00Z", "--duration-s", "600", "--step-s", "1"]
-    assert cli([*args, "--exposure-s", "1", "-o", str(geo_csv)]) == 0
-    geo = jaxlc.read_geometry(geo_csv)
+    geo = demo_pass(tmp_path / "geometry.csv", "2020-08-10T18:00:00Z", 600)
     scene = jaxlc.load_scene("s5_cubesat")
     data = fit_data(jaxlc.render(scene, geo), geo)
     sub = data.stratified_subset(64, np.random.default_rng(0))
