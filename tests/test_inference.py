@@ -194,8 +194,7 @@ def test_search_model_holds_the_cubesat_at_its_true_spin(tmp_path):
 def test_fit_recovers_spin_state(cubesat_case, tmp_path):
     """A small, fixed-seed version of experiments/sbc_fit.py."""
     from jaxlc.inference.fit import FitSettings, fit_spin
-    from jaxlc.inference.model import SEARCH_DIRECTIONS, coarsen_facets
-    from jaxlc.inference.search import SEARCH_FACET_INSTANTS, SEARCH_MAX_SUBSAMPLES
+    from jaxlc.inference.search import search_subsamples
 
     scene, geo, lc = cubesat_case
     settings = FitSettings(n_starts=256, max_steps=500, mcmc_modes=1, seed=3, period_s=10.0)
@@ -239,8 +238,7 @@ def test_fit_recovers_spin_state(cubesat_case, tmp_path):
         assert s["converged"] + s["max_steps"] + s["failed"] == s["solves"]
     # the search model's sub-exposures within its budget (the CubeSat's 6 merged facets
     # get more than 8: its 1.8° glints need them)
-    merged = coarsen_facets(jaxlc.load_scene("s5_cubesat").body[1], SEARCH_DIRECTIONS).n_facets
-    cap = max(SEARCH_MAX_SUBSAMPLES, SEARCH_FACET_INSTANTS // merged)
+    cap = search_subsamples(scene)
     assert stages["search"]["solves"] == 256 and 8 < stages["search"]["subsamples"] <= cap
     assert summary["model"]["subsamples"] > 1  # the exposures are modelled
     for f in ("samples.parquet", "corner.png", "fit.png"):
