@@ -33,9 +33,9 @@ from run_info import provenance  # noqa: E402
 from sbc_fit import OUT, draw, pass_geometry  # noqa: E402
 
 import jaxlc  # noqa: E402
+from jaxlc.inference.batched_solve import least_squares  # noqa: E402
 from jaxlc.inference.data import fit_data, soft_clip  # noqa: E402
 from jaxlc.inference.model import angle_between_deg, spin_model, truth_theta  # noqa: E402
-from jaxlc.inference.search import least_squares  # noqa: E402
 from jaxlc.inference.search_starts import batch_magnitudes, match_offset  # noqa: E402
 
 NOISE_MAG = 0.05

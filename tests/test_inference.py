@@ -76,7 +76,7 @@ def test_mmt_reader_requires_its_header(tmp_path):
 
 
 def test_coarsened_facets_conserve_area_and_area_vector():
-    from jaxlc.inference.model import coarsen_facets
+    from jaxlc.body.facet_merge import coarsen_facets
 
     f = jaxlc.load_scene("s4_falcon9").facets
     c = coarsen_facets(f, 64)
@@ -249,9 +249,9 @@ def test_refinement_stops_when_stalled_at_the_same_optimum(cubesat_case):
     """The refinement's LM stops after STALL_STEPS rejected steps (float32 residuals
     never meet optimistix's own test, so every solve used to run to max_steps): the
     same optima as the solver without the stop, to 1e-3 of the cost."""
+    from jaxlc.inference.batched_solve import least_squares
     from jaxlc.inference.data import fit_data
     from jaxlc.inference.model import spin_model, truth_theta
-    from jaxlc.inference.search import least_squares
 
     scene, geo, lc = cubesat_case
     data = fit_data(lc, geo, default_exposure_s=scene.exposure_s)
@@ -318,9 +318,9 @@ def test_fit_refuses_a_curve_that_does_not_vary(cubesat_case):
 def test_failed_solves_are_counted_and_left_out(cubesat_case):
     """A start the solver cannot use (non-finite) comes back as a failure with an
     infinite cost, counted in the report, and never becomes a mode."""
+    from jaxlc.inference.batched_solve import least_squares
     from jaxlc.inference.data import fit_data
     from jaxlc.inference.model import spin_model, truth_theta
-    from jaxlc.inference.search import least_squares
     from jaxlc.inference.search_starts import distinct_modes
 
     scene, geo, lc = cubesat_case
@@ -523,7 +523,7 @@ def test_solver_blocks_leave_no_remainder_unless_padding_is_cheaper(starts, most
     """lax.map compiles a second body for a remainder block: the LM blocks divide the
     starts where a divisor of at least half the memory bound exists (else the starts
     are padded)."""
-    from jaxlc.inference.search import block_size
+    from jaxlc.inference.batched_solve import block_size
 
     b = block_size(starts, most)
     assert b == expected and b <= max(most, 1)

@@ -2,7 +2,7 @@
 
 Each mode the MCMC samples (:mod:`jaxlc.inference.mcmc`) starts from here:
 :func:`recentre` moves the mode found on one model to its optimum on the model
-sampled (Gauss–Newton on the model's Jacobian), :func:`initial_ball` draws the
+sampled (Levenberg–Marquardt on the model's Jacobian), :func:`initial_ball` draws the
 walkers from the Gaussian σ² (JᵀJ)⁻¹ there, and :func:`laplace_log_evidence`
 turns the samples back into the mode's evidence for the mixture weights.
 """

@@ -44,7 +44,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxlc.body.attitude import Spin, phase_at_offset_deg, pole_vector, reference_direction
-from jaxlc.body.mesh import Facets
+from jaxlc.body.facet_merge import coarsen_facets
 from jaxlc.inference.data import FitData, soft_clip
 from jaxlc.rendering.attitude_jacobian import attitude_intensity
 from jaxlc.rendering.kernel import KernelInputs, SpaceObject, exposure_intensity
@@ -178,7 +178,7 @@ class SpinModel(FitModel):
         return exposure_intensity(obj, self.inputs, chunk)
 
 
-#: Normal bins of the search model's merged facets (:func:`coarsen_facets`).
+#: Normal bins of the search model's merged facets (:func:`~jaxlc.body.facet_merge.coarsen_facets`).
 SEARCH_DIRECTIONS = 128
 
 
@@ -206,7 +206,7 @@ def spin_model(
             needs the most sub-exposures), and it is the reference P_ref
             (rounded to float32) of the device coordinates.
         exact: False for the search model: facets merged into ``directions``
-            normal bins (:func:`coarsen_facets`) and no shadows.
+            normal bins (:func:`~jaxlc.body.facet_merge.coarsen_facets`) and no shadows.
         max_subsamples: a cap on the sub-exposures per exposure (the search).
         floor: add the intensity floor (off: exact magnitudes, +inf where dark).
         theta: (6,) host LM coordinates of a spin: where the render plan asks for
@@ -258,7 +258,7 @@ def fit_preparation(
     a fit's samples: what every fit model (spin or tumble) evaluates.
 
     ``exact`` False: the search model (facets merged into ``directions`` normal
-    bins by :func:`coarsen_facets`, no shadows); ``max_subsamples`` caps the
+    bins by :func:`~jaxlc.body.facet_merge.coarsen_facets`, no shadows); ``max_subsamples`` caps the
     sub-exposures; ``tolerance_mag`` replaces the scene's ``blur_tolerance_mag``.
     """
     options = trial.render
@@ -278,55 +278,6 @@ def fit_preparation(
             )
     return prepare(
         trial, data.geometry, options, rows=data.rows, origin_utc=data.epoch_utc, facets=facets
-    )
-
-
-# ---------------------------------------------------------------------------
-# The coarse model: facets clustered by normal
-
-
-def fibonacci_sphere(n: int) -> np.ndarray:
-    """(n, 3) nearly uniform unit vectors."""
-    k = np.arange(n) + 0.5
-    z = 1 - 2 * k / n
-    r = np.sqrt(1 - z**2)
-    phi = np.pi * (1 + 5**0.5) * k
-    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
-
-
-def coarsen_facets(facets: Facets, directions: int = 64) -> Facets:
-    """Merge the facets of each part whose normals fall in one of ``directions`` bins.
-
-    A merged facet keeps the summed area, the area-weighted mean normal and
-    centroid, and its triangles (so the shadow table of a merged facet is the
-    area-weighted mean over all of them). Exact for facets with identical
-    normals; otherwise an approximation whose error grows with the bin size
-    relative to the sharpest lobe.
-    """
-    if facets.n_facets <= directions:
-        return facets
-    grid = fibonacci_sphere(directions)
-    bin_id = np.argmax(facets.normals @ grid.T, axis=1)
-    key = facets.part.astype(np.int64) * directions + bin_id
-    uniq, inv = np.unique(key, return_inverse=True)
-    a = facets.areas_m2
-    n_sum = np.zeros((len(uniq), 3))
-    np.add.at(n_sum, inv, facets.normals * a[:, None])
-    area = np.bincount(inv, weights=a)
-    c_sum = np.zeros((len(uniq), 3))
-    np.add.at(c_sum, inv, facets.centroids_m * a[:, None])
-    norm = np.linalg.norm(n_sum, axis=1, keepdims=True)
-    normals = np.where(norm > 0, n_sum / np.maximum(norm, 1e-300), grid[uniq % directions])
-    can_shadow = np.bincount(inv, weights=facets.can_shadow.astype(float)) > 0
-    tri = facets.triangle_facet
-    return dataclasses.replace(
-        facets,
-        normals=normals,
-        areas_m2=area,
-        centroids_m=c_sum / area[:, None],
-        part=(uniq // directions).astype(facets.part.dtype),
-        can_shadow=can_shadow,
-        triangle_facet=np.where(tri >= 0, inv[np.maximum(tri, 0)], -1),
     )
 
 

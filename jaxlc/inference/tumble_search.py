@@ -14,7 +14,7 @@ reports are two of those combinations, and photometry does not say which:
    and ω in a uniform direction, kept when their T_ω/P_ψ is the hypothesis's
    (within 2 %), scaled to its periods, in a uniform attitude;
 3. :func:`tumble_multistart`: one batched Levenberg–Marquardt solve
-   (:func:`jaxlc.inference.search.least_squares`) on the coarse model, the
+   (:func:`jaxlc.inference.batched_solve.least_squares`) on the coarse model, the
    distinct optima (periods within 1 %, L within 10°) refined on the exact one.
 """
 
@@ -30,11 +30,12 @@ import numpy as np
 
 from jaxlc.body.attitude import matrix_to_quaternion, quaternion_to_matrix
 from jaxlc.errors import JaxlcError
+from jaxlc.inference.batched_solve import SolveReport, least_squares
 from jaxlc.inference.data import FitData
 from jaxlc.inference.harmonics import HarmonicModel, bic, median_step_s
 from jaxlc.inference.mcmc import unit_vectors
 from jaxlc.inference.model import angle_between_deg
-from jaxlc.inference.search import SolveReport, least_squares, search_subsamples
+from jaxlc.inference.search import search_subsamples
 from jaxlc.inference.search_starts import match_offset
 from jaxlc.inference.tumble_model import (
     N_TUMBLE_LM,
