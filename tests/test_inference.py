@@ -485,9 +485,9 @@ def test_dense_jvp_matches_plain_autodiff():
     import jax
     import jax.numpy as jnp
 
+    from jaxlc.inference.batched_solve import dense_jvp
     from jaxlc.inference.data import fit_data
     from jaxlc.inference.model import spin_model
-    from jaxlc.inference.search import dense_jvp
 
     scene = jaxlc.load_scene("s4_falcon9")
     geo = jaxlc.synthetic_geometry(duration_s=120, step_s=2.0, phase_start_deg=30, tilt_deg=30)
