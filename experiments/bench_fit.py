@@ -86,7 +86,8 @@ def result_row(r: dict, scene_name: str, run, compiles: str, att, **extra) -> di
         "walkers": d["walkers"],
         "steps_kept": d["steps"],
         "adapt_steps": d["burn_in"],
-        "tau_max": max(d["tau"].values()),
+        # NaN (JSON null from the command line) where the draws are independent
+        "tau_max": float(np.max([np.nan if v is None else v for v in d["tau"].values()])),
         "chain_length_tau": d["chain_length_tau"],
         "acceptance": d["acceptance"],
         "period_s": r["period_s"],
