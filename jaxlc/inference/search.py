@@ -1,14 +1,11 @@
 """Multi-start MAP search: batched Levenberg–Marquardt solves and their distinct optima.
 
-:func:`multistart` runs ≥ 1,000 optimistix Levenberg–Marquardt solves in one
-batched solve on a cheap model (facets clustered by normal, no shadows, 64 of
-the samples, the same exposure model with at most 8 sub-exposures), seeded
-by the periodogram, then as many again at the reversed (and the same) poles of the best
-optima; the distinct optima are refined on the exact model and become
-:class:`Mode` objects. Solver outcomes are data: every solve's optimistix
-``result`` is kept and counted (:class:`SolveReport`), so starts that did not
-converge are reported, not hidden behind an infinite cost
-(:mod:`jaxlc.inference.batched_solve`).
+:func:`multistart` runs ≥ 1,000 Levenberg–Marquardt solves in one batched solve
+(:mod:`jaxlc.inference.batched_solve`, which also counts how each ended) on a cheap
+model (facets clustered by normal, no shadows, 64 of the samples, the same exposure
+model with sub-exposures within a facet-instant budget), seeded by the periodogram,
+then as many again at the reversed (and the same) poles of the best optima; the
+distinct optima are refined on the exact model and become :class:`Mode` objects.
 """
 
 from __future__ import annotations
