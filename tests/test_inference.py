@@ -267,6 +267,35 @@ def test_refinement_stops_when_stalled_at_the_same_optimum(cubesat_case):
     np.testing.assert_allclose(stalled[0][:, 3], plain[0][:, 3], atol=1e-6)  # ln P
 
 
+def test_cost_at_starts_and_starts_given_no_steps(cubesat_case):
+    """``cost_at`` is the weighted sum of squares written out from the model's magnitudes
+    (its slow twin), and a stalling solve carries a start given no steps along untouched
+    (cost +inf, not counted) while the others are solved as they are alone."""
+    from jaxlc.inference.batched_solve import cost_at, least_squares
+    from jaxlc.inference.data import fit_data, soft_clip
+    from jaxlc.inference.model import spin_model, truth_theta
+
+    scene, geo, lc = cubesat_case
+    data = fit_data(lc, geo, default_exposure_s=scene.exposure_s).subset(np.arange(0, 600, 5))
+    data = dataclasses.replace(data, mag_err=np.full(data.n, 0.05))
+    truth = truth_theta(scene, data)
+    rng = np.random.default_rng(3)
+    starts = truth + rng.normal(size=(3, 6)) * np.array([0.01, 0.01, 0.01, 2e-5, 0.02, 0.02])
+    model = spin_model(scene, data, scene.attitude.period_s)
+    observed = soft_clip(data.mag, data.limit_mag)
+    twin = [np.sum(((np.asarray(model.magnitudes(model.to_device(s))) - observed) / 0.05) ** 2)
+            for s in starts]  # fmt: skip
+    np.testing.assert_allclose(cost_at(model, data, starts), twin, rtol=1e-4)
+
+    budget = np.array([[12, 3], [0, 3], [12, 3]])
+    theta, cost, report = least_squares(model, data, starts, 12, "refine", True, budget)
+    alone = least_squares(model, data, starts[[0, 2]], 12, "refine", True)
+    np.testing.assert_allclose(theta[1], starts[1], atol=1e-6)  # float32 on the device
+    assert np.isinf(cost[1]) and report.solves == 2 and report.failed == 0
+    np.testing.assert_allclose(cost[[0, 2]], alone[1], rtol=1e-5)
+    assert np.all(cost[[0, 2]] <= cost_at(model, data, starts[[0, 2]]) * (1 + 1e-6))
+
+
 def test_polish_finds_the_true_mode_that_a_short_refinement_left_behind(tmp_path):
     """SBC case 91 (experiments/sbc_fit.py's draw: a 105.9 s CubeSat spin over the
     real pass, 0.05 mag noise). The refinement's short budget stopped the truth's mode

@@ -132,7 +132,7 @@ def _solve(model: SpinModel, mag, weight, starts, budget, max_steps: int, batch:
 
     solver = (stalling_lm() if stall else optx.LevenbergMarquardt)(rtol=1e-5, atol=1e-6)
 
-    def one(start):
+    def run(start):
         y0, b = start
         sol = optx.least_squares(residuals, solver, y0, b, max_steps=max_steps, throw=False)
         r = residuals(sol.value, None)
@@ -142,7 +142,41 @@ def _solve(model: SpinModel, mag, weight, starts, budget, max_steps: int, batch:
         converged = (sol.result == optx.RESULTS.successful) & ~at_limit
         return sol.value, jnp.sum(r**2), converged, at_limit
 
+    def skip(start):  # a start given no steps: carried along, not evaluated
+        no = jnp.zeros((), bool)
+        return start[0], jnp.asarray(jnp.inf, mag.dtype), no, no
+
+    def one(start):
+        if not stall:
+            return run(start)
+        # one start at a time (batch 1) this is a real branch: the polish's carried
+        # optima and the padding cost nothing; under vmap both branches run
+        return jax.lax.cond(start[1][0] > 0, run, skip, start)
+
     return jax.lax.map(one, (starts, budget), batch_size=batch)
+
+
+@filter_jit
+def _cost(model: SpinModel, mag, weight, thetas):
+    """(K,) Σ ((model − data) · weight)² at (K, P) device coordinates, one at a time."""
+    return jax.lax.map(lambda th: jnp.sum(((model.magnitudes(th) - mag) * weight) ** 2), thetas)
+
+
+def cost_at(model: SpinModel, data: FitData, thetas: np.ndarray) -> np.ndarray:
+    """(K,) the cost :func:`least_squares` reports, at the (K, P) host coordinates themselves
+    (no steps, no Jacobian: an LM solve given no steps still linearises at its start,
+    6-7× the price of the residuals on S4's exact model); +inf where not finite."""
+    mag, weight = _weighted_data(data)
+    cost = np.asarray(_cost(model, mag, weight, model.to_device(thetas)), np.float64)
+    return np.where(np.isfinite(cost), cost, np.inf)
+
+
+def _weighted_data(data: FitData):
+    """The data magnitudes (softly clipped) and residual weights 1/σ (1 where σ is
+    unknown), float32 on the device."""
+    sigma = np.where(data.mag_err > 0, data.mag_err, 1.0)
+    mag = jnp.asarray(soft_clip(data.mag, data.limit_mag), jnp.float32)
+    return mag, jnp.asarray(1.0 / sigma, jnp.float32)
 
 
 def block_size(starts: int, most: int) -> int:
@@ -182,18 +216,22 @@ def least_squares(
 
     Returns:
         (K, P) optima, (K,) their sums of squared residuals (weights 1/σ with
-        σ the data errors, or 1 mag where unknown; +inf where the solve failed)
+        σ the data errors, or 1 mag where unknown; +inf where the solve failed or,
+        under ``stall``, a start was given no steps: it is returned as it came)
         and the :class:`SolveReport`.
     """
-    sigma = np.where(data.mag_err > 0, data.mag_err, 1.0)
-    mag = jnp.asarray(soft_clip(data.mag, data.limit_mag), jnp.float32)
-    weight = jnp.asarray(1.0 / sigma, jnp.float32)
+    mag, weight = _weighted_data(data)
     per_start = len(model.inputs.weight) * model.obj.n_facets
     batch = block_size(len(starts), 2**21 // per_start)
     budget = np.asarray(
         np.tile([max_steps, STALL_STEPS], (len(starts), 1)) if budget is None else budget
     )
-    k, pad = len(starts), -len(starts) % batch  # padded with copies of the last start
+    k = len(starts)
+    # padded with copies of the last start, given no steps: to a multiple of the batch
+    # and, under ``stall``, of a power of two, so that fits with different numbers of
+    # candidates share one compilation (S4's exact model: ~4 s each)
+    size = max(1 << (k - 1).bit_length(), batch) if stall else k
+    pad = size - k + (-size % batch)
     padded = np.concatenate([starts, np.repeat(starts[-1:], pad, axis=0)])
     steps = np.concatenate([budget, np.zeros((pad, 2), np.int64)])
     theta, cost, converged, at_limit = (

@@ -17,7 +17,7 @@ import numpy as np
 
 from jaxlc.body.facet_merge import coarsen_facets
 from jaxlc.errors import JaxlcError
-from jaxlc.inference.batched_solve import STALL_STEPS, SolveReport, least_squares
+from jaxlc.inference.batched_solve import STALL_STEPS, SolveReport, cost_at, least_squares
 from jaxlc.inference.data import FitData
 from jaxlc.inference.model import (
     N_LM,
@@ -216,11 +216,7 @@ def multistart(
     exact = spin_model(scene, data, float(np.exp(init[:, 3].min())), exact=True)
     ceiling = refine_steps + POLISH_STEPS  # one compilation for the twins and both stages
 
-    def chi2(starts):  # at the starts themselves: no steps
-        none = np.zeros((len(starts), 2), np.int64)
-        return least_squares(exact, data, starts, ceiling, "", True, none)[1]
-
-    init = better_half_turn(init, chi2)
+    init = better_half_turn(init, lambda starts: cost_at(exact, data, starts))
     first = np.tile([refine_steps, STALL_STEPS], (len(init), 1))
     refined, rcost, r3 = least_squares(exact, data, init, ceiling, "refine", True, first)
     log(r3.describe())
