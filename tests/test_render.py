@@ -404,7 +404,7 @@ def test_wide_vectors_only_without_inverse_trigonometry():
     XLA miscompiles with 512-bit vectors): not a tumbling body's attitude, nor arctan2;
     a spinning body's kernel is wide; either way the values are the plain ``jit``'s."""
     from jaxlc.rendering.kernel import exposure_intensity
-    from jaxlc.xla import jit, wide_is_safe, wide_jit
+    from jaxlc.xla import filter_jit, jit, wide_is_safe, wide_jit
 
     x = np.linspace(-3.0, 3.0, 64, dtype=np.float32)
     assert not wide_is_safe(lambda a: jnp.arctan2(a, 1.0), (x,))
@@ -412,6 +412,8 @@ def test_wide_vectors_only_without_inverse_trigonometry():
     assert wide_is_safe(jnp.tanh, (x,))
     np.testing.assert_array_equal(wide_jit(jnp.arctan)(x), jit(jnp.arctan)(x))
     np.testing.assert_allclose(wide_jit(jnp.arctan)(x), np.arctan(x), rtol=1e-6)
+    np.testing.assert_allclose(filter_jit(jnp.arctan)(x), np.arctan(x), rtol=1e-6)
+    np.testing.assert_allclose(filter_jit(jnp.tanh)(x), np.tanh(x), rtol=1e-6)
     geo = jaxlc.synthetic_geometry(duration_s=60, phase_start_deg=20, phase_end_deg=40)
     for name, safe in (("s5_cubesat", True), ("falcon9_tumble", False)):
         prepared = jaxlc.prepare(name, geo, jaxlc.RenderOptions(blur="off"))
