@@ -13,10 +13,8 @@ from helpers import rotation_matrix_from_quaternion, unit
 from jaxlc.body.attitude import (
     Fixed,
     Spin,
-    VectorSpin,
     matrix_to_quaternion,
     phase_at_offset_deg,
-    pole_vector,
     quaternion_to_matrix,
     reference_direction,
 )
@@ -123,24 +121,3 @@ def test_phase_transfer_between_epochs():
     assert phase_at_offset_deg(10.0, 82.6, 82.6 * 1000) == pytest.approx(10.0, abs=1e-6)
     assert phase_at_offset_deg(10.0, 80.0, 20.0) == pytest.approx(100.0)
     assert phase_at_offset_deg(10.0, 80.0, -20.0) == pytest.approx(280.0)
-
-
-@pytest.mark.parametrize(("ra_deg", "dec_deg"), [(30.0, 60.0), (250.0, -35.0), (0.0, 90.0)])
-def test_vector_spin_is_the_spin_of_its_pole(ra_deg, dec_deg):
-    """A spin given by a pole vector of any length (the fit's, free of arctan) turns the
-    body as the spin of that pole's right ascension and declination, the pole itself
-    (where the right ascension is 0 by convention) included; its times are the same."""
-    with jax.enable_x64(True):
-        spin = Spin.from_degrees([0.3, -0.2, 0.9], ra_deg, dec_deg, 37.0, 15.0, np.float64)
-        vec = VectorSpin(
-            body_axis=spin.body_axis,
-            body_ref=spin.body_ref,
-            pole=3.0 * pole_vector(math.radians(ra_deg), math.radians(dec_deg)),
-            period_s=spin.period_s,
-            phase_rad=spin.phase_rad,
-            period_offset_s=spin.period_offset_s,
-        )
-        t = np.linspace(0.0, 500.0, 41)
-        np.testing.assert_allclose(
-            vec.rotation(vec.times(t)), spin.rotation(spin.times(t)), atol=1e-12
-        )

@@ -202,92 +202,46 @@ class Spin(AbstractAttitude):
                 from (e.g. the scene's); the split then reproduces the float64
                 angle to ~1e-7 rad in a float32 model. Default: ``self.period_s``.
         """
-        return spin_times(self, t_s, period_s)
+        t = np.asarray(t_s, dtype=np.float64)
+        period = float(self.period_s) if period_s is None else float(period_s)
+        turns = np.floor(t / period)
+        dtype = leaf_dtype(self)
+        return SpinTimes(
+            turns=turns.astype(dtype),
+            remainder_s=(t - turns * period).astype(dtype),
+            period_ref_s=np.full(t.shape, period, dtype=dtype),
+        )
 
     def angle_rad(self, times) -> Float[Array, " T"]:
         """Rotation angle φ(t) (rad, not wrapped)."""
-        return spin_angle_rad(self, times)
+        if isinstance(times, SpinTimes):
+            # t = n P₀ + r, so φ = phase + 2π (r + n (P₀ − P)) / P  (mod 2π): exact in
+            # value and in dφ/dP, and precise in float32 while P stays near P₀.
+            # With P = period_s + period_offset_s: (P₀ − period_s) is exactly 0 when
+            # period_s is the reference, and the offset keeps its full precision.
+            dt = times.remainder_s + times.turns * (
+                (times.period_ref_s - self.period_s) - self.period_offset_s
+            )
+        else:
+            dt = times
+        return self.phase_rad + (2.0 * jnp.pi / (self.period_s + self.period_offset_s)) * dt
 
     def rotation(self, times):
-        ra = self.pole_ra_rad
-        p = pole_vector(ra, self.pole_dec_rad)
+        ra, dec = self.pole_ra_rad, self.pole_dec_rad
+        p = pole_vector(ra, dec)
         q = jnp.stack([-jnp.sin(ra), jnp.cos(ra), jnp.zeros_like(ra)])
-        return spin_rotation(self, p, q, times)
-
-
-class VectorSpin(AbstractAttitude):
-    """:class:`Spin` with its pole given as a vector (any length) instead of angles: the
-    same rotations, made without inverse trigonometric functions (a fit's model, which
-    :func:`jaxlc.xla.wide_jit` can then compile for wide vectors). Fields as :class:`Spin`'s.
-    """
-
-    body_axis: Float[Array, " 3"]
-    body_ref: Float[Array, " 3"]
-    pole: Float[Array, " 3"]
-    period_s: Float[Array, ""]
-    phase_rad: Float[Array, ""]
-    period_offset_s: Float[Array, ""] = 0.0
-
-    def times(self, t_s, period_s: float | None = None) -> SpinTimes:
-        """As :meth:`Spin.times`."""
-        return spin_times(self, t_s, period_s)
-
-    def rotation(self, times):
-        u = self.pole / jnp.linalg.norm(self.pole)
-        rho = jnp.hypot(u[0], u[1])
-        safe = jnp.where(rho > 1e-12, rho, 1.0)
-        # east of the pole: (−sin α, cos α, 0) for its right ascension α (α = 0 at a pole)
-        q = jnp.where(
-            rho > 1e-12,
-            jnp.stack([-u[1] / safe, u[0] / safe, jnp.zeros_like(rho)]),
-            jnp.array([0.0, 1.0, 0.0], u.dtype),
+        pxq = jnp.cross(p, q)
+        phi = self.angle_rad(times)  # (T,)
+        c, s = jnp.cos(phi)[:, None], jnp.sin(phi)[:, None]
+        q_t = c * q[None, :] + s * pxq[None, :]  # image of body_ref
+        pq_t = c * pxq[None, :] - s * q[None, :]  # image of body_axis × body_ref
+        b, e = self.body_axis, self.body_ref
+        be = jnp.cross(b, e)
+        return (
+            q_t[:, :, None] * e[None, None, :]
+            + pq_t[:, :, None] * be[None, None, :]
+            + p[None, :, None] * b[None, None, :]
         )
-        return spin_rotation(self, u, q, times)
-
-
-def spin_times(spin, t_s, period_s: float | None = None) -> SpinTimes:
-    """:meth:`Spin.times` of a :class:`Spin` or :class:`VectorSpin`."""
-    t = np.asarray(t_s, dtype=np.float64)
-    period = float(spin.period_s) if period_s is None else float(period_s)
-    turns = np.floor(t / period)
-    dtype = leaf_dtype(spin)
-    return SpinTimes(
-        turns=turns.astype(dtype),
-        remainder_s=(t - turns * period).astype(dtype),
-        period_ref_s=np.full(t.shape, period, dtype=dtype),
-    )
-
-
-def spin_angle_rad(spin, times) -> Float[Array, " T"]:
-    """Rotation angle φ(t) (rad, not wrapped) of a :class:`Spin` or :class:`VectorSpin`."""
-    if isinstance(times, SpinTimes):
-        # t = n P₀ + r, so φ = phase + 2π (r + n (P₀ − P)) / P  (mod 2π): exact in
-        # value and in dφ/dP, and precise in float32 while P stays near P₀.
-        # With P = period_s + period_offset_s: (P₀ − period_s) is exactly 0 when
-        # period_s is the reference, and the offset keeps its full precision.
-        dt = times.remainder_s + times.turns * (
-            (times.period_ref_s - spin.period_s) - spin.period_offset_s
-        )
-    else:
-        dt = times
-    return spin.phase_rad + (2.0 * jnp.pi / (spin.period_s + spin.period_offset_s)) * dt
-
-
-def spin_rotation(spin, p, q, times) -> Float[Array, "T 3 3"]:
-    """(T, 3, 3) body → inertial rotations of a spin about the unit pole ``p`` (3,), with
-    ``q`` (3,) the unit vector ⊥ p that ``body_ref`` meets at angle 0."""
-    pxq = jnp.cross(p, q)
-    phi = spin_angle_rad(spin, times)  # (T,)
-    c, s = jnp.cos(phi)[:, None], jnp.sin(phi)[:, None]
-    q_t = c * q[None, :] + s * pxq[None, :]  # image of body_ref
-    pq_t = c * pxq[None, :] - s * q[None, :]  # image of body_axis × body_ref
-    b, e = spin.body_axis, spin.body_ref
-    be = jnp.cross(b, e)
-    return (
-        q_t[:, :, None] * e[None, None, :]
-        + pq_t[:, :, None] * be[None, None, :]
-        + p[None, :, None] * b[None, None, :]
-    )
 
 
 class SpinTimes(eqx.Module):

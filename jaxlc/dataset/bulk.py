@@ -33,7 +33,7 @@ from jaxlc.body.brdf import BRDFS
 from jaxlc.body.facet_model import pad_models
 from jaxlc.rendering.kernel import KernelInputs, SpaceObject, exposure_intensity
 from jaxlc.rendering.prepare import Prepared, adapt, probe_inputs
-from jaxlc.xla import wide_jit
+from jaxlc.xla import jit
 
 #: Blocks per kernel call for the remainder of a class's blocks after the full batches
 #: (a second compiled shape): 25 S4 curves' 25 blocks cost 28 block evaluations, not 32.
@@ -78,7 +78,7 @@ def batch_kernel(sequential: bool):
 
     else:
         f = jax.vmap(_one, in_axes=(0, 0, None, 0, None))
-    return wide_jit(f, static_argnums=(4,))
+    return jit(f, static_argnums=(4,))
 
 
 def _stack(trees):

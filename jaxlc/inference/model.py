@@ -43,12 +43,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxlc.body.attitude import (
-    VectorSpin,
-    phase_at_offset_deg,
-    pole_vector,
-    reference_direction,
-)
+from jaxlc.body.attitude import Spin, phase_at_offset_deg, pole_vector, reference_direction
 from jaxlc.body.facet_merge import coarsen_facets
 from jaxlc.inference.data import FitData, soft_clip
 from jaxlc.rendering.attitude_jacobian import attitude_intensity
@@ -158,13 +153,16 @@ class SpinModel(FitModel):
         """Device LM coordinates → host float64 (:func:`from_device`)."""
         return from_device(self, theta)
 
-    def attitude(self, pole_vec, ln_period_ratio, phase) -> VectorSpin:
-        """The spin of a pole vector, ln(P / P_ref) and the phase at the fit epoch (no
-        inverse trigonometry: :func:`jaxlc.xla.wide_jit` may compile it wide)."""
-        return VectorSpin(
+    def attitude(self, pole_vec, ln_period_ratio, phase) -> Spin:
+        """The spin of a pole vector, ln(P / P_ref) and the phase at the fit epoch."""
+        u = pole_vec / jnp.linalg.norm(pole_vec)
+        ra = jnp.arctan2(u[1], u[0])
+        dec = jnp.arctan2(u[2], jnp.hypot(u[0], u[1]))
+        return Spin(
             body_axis=self.body_axis,
             body_ref=self.body_ref,
-            pole=pole_vec,
+            pole_ra_rad=ra,
+            pole_dec_rad=dec,
             period_s=self.period_ref_s,
             phase_rad=phase,
             period_offset_s=self.period_ref_s * jnp.expm1(ln_period_ratio),

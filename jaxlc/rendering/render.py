@@ -25,9 +25,9 @@ from jaxlc.rendering.observation import GeometryArrays
 from jaxlc.rendering.options import RenderOptions
 from jaxlc.rendering.prepare import Prepared, adapt, prepare, probe_inputs
 from jaxlc.scene import Scene
-from jaxlc.xla import wide_jit
+from jaxlc.xla import jit
 
-_kernel = wide_jit(exposure_intensity)
+_kernel = jit(exposure_intensity, static_argnames=("chunk",))
 
 
 def intensity(prepared: Prepared) -> np.ndarray:
