@@ -5,6 +5,7 @@ single batched solve (vmapped blocks under ``lax.map``), the search's short solv
 and the refinement's stalling ones (:func:`stalling_lm`) alike. Solver outcomes are
 data: every solve's optimistix ``result`` is kept and counted (:class:`SolveReport`),
 so starts that did not converge are reported, not hidden behind an infinite cost.
+:func:`cost_at` gives the same cost at given points without a solve.
 """
 
 from __future__ import annotations
@@ -230,7 +231,7 @@ def least_squares(
     # padded with copies of the last start, given no steps: to a multiple of the batch
     # and, under ``stall``, of a power of two, so that fits with different numbers of
     # candidates share one compilation (S4's exact model: ~4 s each)
-    size = max(1 << (k - 1).bit_length(), batch) if stall else k
+    size = max(1 << (k - 1).bit_length(), batch) if stall and k else k
     pad = size - k + (-size % batch)
     padded = np.concatenate([starts, np.repeat(starts[-1:], pad, axis=0)])
     steps = np.concatenate([budget, np.zeros((pad, 2), np.int64)])

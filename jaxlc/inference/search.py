@@ -214,7 +214,7 @@ def multistart(
     log(r2.describe())
     init = np.stack([c[0] for c in candidates])
     exact = spin_model(scene, data, float(np.exp(init[:, 3].min())), exact=True)
-    ceiling = refine_steps + POLISH_STEPS  # one compilation for the twins and both stages
+    ceiling = refine_steps + POLISH_STEPS  # one compilation for both stages
 
     init = better_half_turn(init, lambda starts: cost_at(exact, data, starts))
     first = np.tile([refine_steps, STALL_STEPS], (len(init), 1))
