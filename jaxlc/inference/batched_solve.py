@@ -164,9 +164,10 @@ def _cost(model: SpinModel, mag, weight, thetas):
 
 
 def cost_at(model: SpinModel, data: FitData, thetas: np.ndarray) -> np.ndarray:
-    """(K,) the cost :func:`least_squares` reports, at the (K, P) host coordinates themselves
-    (no steps, no Jacobian: an LM solve given no steps still linearises at its start,
-    6-7× the price of the residuals on S4's exact model); +inf where not finite."""
+    """(K,) the cost :func:`least_squares` reports, at the (K, P) host coordinates themselves:
+    residuals only, no solve and no Jacobian (the zero-step LM solve this replaced in the
+    search linearised at each start, 6-7× the price on S4's exact model); +inf where not
+    finite."""
     mag, weight = _weighted_data(data)
     cost = np.asarray(_cost(model, mag, weight, model.to_device(thetas)), np.float64)
     return np.where(np.isfinite(cost), cost, np.inf)
