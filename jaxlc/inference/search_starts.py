@@ -15,7 +15,7 @@ import jax
 import numpy as np
 
 from jaxlc.inference.data import FitData, soft_clip
-from jaxlc.inference.model import SpinModel, angle_between_deg
+from jaxlc.inference.model import SpinModel
 from jaxlc.xla import filter_jit
 
 
@@ -50,6 +50,47 @@ def reversed_starts(thetas, n_starts: int, rng: np.random.Generator) -> np.ndarr
     return out
 
 
+def greedy_clusters(
+    cost: np.ndarray,
+    directions: np.ndarray,
+    ln_periods: np.ndarray,
+    direction_tol_deg: float,
+    period_tol: float,
+    max_clusters: int,
+) -> list[tuple[int, int]]:
+    """Greedy clustering of optima, best (lowest ``cost``) first: (index of the cluster's
+    best optimum, members) per cluster.
+
+    Each optimum joins the first cluster whose best has its direction (K, 3; a pole or an
+    angular momentum, any length) within ``direction_tol_deg`` and every log period
+    (K, J) within ``period_tol``; otherwise it starts a new one (at most
+    ``max_clusters``, later ones are dropped). Optima of non-finite cost or log
+    period are left out. One array comparison per optimum against all clusters.
+    """
+    cost = np.asarray(cost, np.float64)
+    ln_p = np.asarray(ln_periods, np.float64).reshape(len(cost), -1)
+    u = np.asarray(directions, np.float64)
+    u = u / np.linalg.norm(u, axis=-1, keepdims=True)
+    cos_tol = np.cos(np.radians(direction_tol_deg))
+    ok = np.isfinite(cost) & np.all(np.isfinite(ln_p), axis=1) & np.all(np.isfinite(u), axis=1)
+    heads: list[int] = []
+    members: list[int] = []
+    for k in np.argsort(np.where(ok, cost, np.inf), kind="stable"):
+        if not ok[k]:
+            break
+        if heads:
+            near = (u[heads] @ u[k] > cos_tol) & np.all(
+                np.abs(ln_p[heads] - ln_p[k]) < period_tol, axis=1
+            )
+            if near.any():
+                members[int(np.argmax(near))] += 1
+                continue
+        if len(heads) < max_clusters:
+            heads.append(int(k))
+            members.append(1)
+    return list(zip(heads, members, strict=True))
+
+
 def distinct_modes(
     theta: np.ndarray,
     cost: np.ndarray,
@@ -60,24 +101,11 @@ def distinct_modes(
     """Greedy clustering of optima: (theta, cost, members) per mode, best first.
 
     Two optima belong together when their poles are within ``pole_tol_deg`` and
-    their periods within a fraction ``period_tol``; failed solves (infinite
-    cost) are left out.
+    their periods within a fraction ``period_tol`` (:func:`greedy_clusters`); failed
+    solves (infinite cost) are left out.
     """
-    order = np.argsort(cost)
-    modes: list[list] = []
-    for k in order:
-        if not np.isfinite(cost[k]):
-            break
-        for m in modes:
-            same_pole = angle_between_deg(theta[k, :3], m[0][:3]) < pole_tol_deg
-            same_period = abs(theta[k, 3] - m[0][3]) < period_tol
-            if same_pole and same_period:
-                m[2] += 1
-                break
-        else:
-            if len(modes) < max_modes:
-                modes.append([theta[k], float(cost[k]), 1])
-    return [tuple(m) for m in modes]
+    clusters = greedy_clusters(cost, theta[:, :3], theta[:, 3], pole_tol_deg, period_tol, max_modes)
+    return [(theta[k], float(cost[k]), n) for k, n in clusters]
 
 
 #: Distinct search optima kept for :func:`refinement_set`, per mode refined.

@@ -34,9 +34,8 @@ from jaxlc.inference.batched_solve import SolveReport, least_squares
 from jaxlc.inference.data import FitData
 from jaxlc.inference.harmonics import HarmonicModel, bic, median_step_s
 from jaxlc.inference.mcmc import unit_vectors
-from jaxlc.inference.model import angle_between_deg
 from jaxlc.inference.search import search_subsamples
-from jaxlc.inference.search_starts import match_offset
+from jaxlc.inference.search_starts import greedy_clusters, match_offset
 from jaxlc.inference.tumble_model import (
     N_TUMBLE_LM,
     angular_momentum_radec_deg,
@@ -287,26 +286,12 @@ def distinct_tumbles(
 ) -> list[tuple[np.ndarray, float, int]]:
     """Greedy clustering of optima (theta, cost, members), best first: two belong
     together when both periods agree within ``period_tol`` and L within ``l_tol_deg``."""
-    ok = np.isfinite(cost)
     inertia, omega, q = state_of(theta, rate_ref_rad_s)
     inv = motion_invariants(inertia, omega)
     ln_p = np.log(np.stack([inv["body_period_s"], inv["precession_period_s"]], axis=1))
     ell = unit_vectors(*angular_momentum_radec_deg(inertia, omega, q))
-    modes: list[list] = []
-    for k in np.argsort(np.where(ok, cost, np.inf)):
-        if not ok[k] or not np.all(np.isfinite(ln_p[k])):
-            continue
-        for m in modes:
-            if (
-                np.all(np.abs(ln_p[k] - ln_p[m[3]]) < period_tol)
-                and angle_between_deg(ell[k], ell[m[3]]) < l_tol_deg
-            ):
-                m[2] += 1
-                break
-        else:
-            if len(modes) < max_modes:
-                modes.append([theta[k], float(cost[k]), 1, k])
-    return [(m[0], m[1], m[2]) for m in modes]
+    clusters = greedy_clusters(cost, ell, ln_p, l_tol_deg, period_tol, max_modes)
+    return [(theta[k], float(cost[k]), n) for k, n in clusters]
 
 
 def tumble_multistart(
