@@ -55,8 +55,8 @@ def gauss_newton(at, x: np.ndarray, sigma: np.ndarray, project=None, start=None)
     system damped by λ diag(JᵀJ); a step that does not lower χ² is retried with λ
     raised tenfold (:data:`RECENTRE_DAMPING_TRIES` times), a step that does lowers λ
     tenfold. It stops when no damping helps, when χ² falls by less than
-    :data:`RECENTRE_TOLERANCE_CHI2` or the linearised residuals promise less (the
-    step is then not evaluated), or after :data:`RECENTRE_STEPS` steps. ``project``
+    :data:`RECENTRE_TOLERANCE_CHI2` or the undamped step of the linearised residuals
+    promises less (no step is then evaluated), or after :data:`RECENTRE_STEPS` steps. ``project``
     maps a trial point into the coordinates' domain; ``start``: ``at(x)`` when the
     caller has it already (not evaluated again).
 
@@ -77,11 +77,14 @@ def gauss_newton(at, x: np.ndarray, sigma: np.ndarray, project=None, start=None)
     for _ in range(RECENTRE_STEPS):
         jw, rw = jac / sigma[:, None], r / sigma
         scale = np.sqrt(np.maximum(np.sum(jw**2, axis=0), 1e-30))
+        # converged when even the undamped step promises less than the tolerance
+        # (no point is then evaluated: in a fit each evaluation is a Jacobian)
+        gn, *_ = np.linalg.lstsq(jw / scale, rw, rcond=None)
+        if float(np.sum(((jw / scale) @ gn) ** 2)) < RECENTRE_TOLERANCE_CHI2:
+            break
         for _try in range(RECENTRE_DAMPING_TRIES + 1):
             damped = np.vstack([jw, np.diag(math.sqrt(lam) * scale)])
             step, *_ = np.linalg.lstsq(damped, -np.append(rw, np.zeros(x.size)), rcond=None)
-            if chi2 - float(np.sum((rw + jw @ step) ** 2)) < RECENTRE_TOLERANCE_CHI2:
-                return x, r, jac  # the linear model promises less than the tolerance
             trial = project(x + step)
             r2, jac2 = at(trial)
             chi2_2 = float(np.sum((r2 / sigma) ** 2))

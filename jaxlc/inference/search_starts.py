@@ -70,7 +70,8 @@ def greedy_clusters(
     cost = np.asarray(cost, np.float64)
     ln_p = np.asarray(ln_periods, np.float64).reshape(len(cost), -1)
     u = np.asarray(directions, np.float64)
-    u = u / np.linalg.norm(u, axis=-1, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):  # a zero vector: left out below
+        u = u / np.linalg.norm(u, axis=-1, keepdims=True)
     cos_tol = np.cos(np.radians(direction_tol_deg))
     ok = np.isfinite(cost) & np.all(np.isfinite(ln_p), axis=1) & np.all(np.isfinite(u), axis=1)
     heads: list[int] = []
