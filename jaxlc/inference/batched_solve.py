@@ -125,15 +125,16 @@ def stalling_lm():
     return StallingLevenbergMarquardt
 
 
-def promised_reduction(jac, residual):
+def promised_reduction(jac, residual, xp=jnp):
     """‖r‖² − min_s ‖r + J s‖²: what the undamped Gauss–Newton step promises to take off
     the sum of squares of ``residual`` (N,) with Jacobian ``jac`` (N, P) (columns scaled
     to unit norm first; directions the residuals do not depend on, such as the length
-    of a pole vector, are left out by the least-squares solve)."""
-    norm = jnp.sqrt(jnp.sum(jac**2, axis=0, keepdims=True))
-    scaled = jac / jnp.where(norm > 0, norm, 1.0)
-    step = jnp.linalg.lstsq(scaled, residual)[0]
-    return jnp.sum((scaled @ step) ** 2)
+    of a pole vector, are left out by the least-squares solve). ``xp``: ``jax.numpy``
+    inside a solver, ``numpy`` on the host (:func:`jaxlc.inference.laplace.gauss_newton`)."""
+    norm = xp.sqrt(xp.sum(jac**2, axis=0, keepdims=True))
+    scaled = jac / xp.where(norm > 0, norm, 1.0)
+    step = xp.linalg.lstsq(scaled, residual)[0]
+    return xp.sum((scaled @ step) ** 2)
 
 
 @filter_jit

@@ -15,6 +15,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxlc.inference.batched_solve import promised_reduction
 from jaxlc.inference.data import FitData, soft_clip
 from jaxlc.inference.model import N_MC, SpinModel, lm_to_mc, mc_to_lm, to_device
 from jaxlc.inference.search import Mode
@@ -79,8 +80,7 @@ def gauss_newton(at, x: np.ndarray, sigma: np.ndarray, project=None, start=None)
         scale = np.sqrt(np.maximum(np.sum(jw**2, axis=0), 1e-30))
         # converged when even the undamped step promises less than the tolerance
         # (no point is then evaluated: in a fit each evaluation is a Jacobian)
-        gn, *_ = np.linalg.lstsq(jw / scale, rw, rcond=None)
-        if float(np.sum(((jw / scale) @ gn) ** 2)) < RECENTRE_TOLERANCE_CHI2:
+        if float(promised_reduction(jw, rw, np)) < RECENTRE_TOLERANCE_CHI2:
             break
         for _try in range(RECENTRE_DAMPING_TRIES + 1):
             damped = np.vstack([jw, np.diag(math.sqrt(lam) * scale)])

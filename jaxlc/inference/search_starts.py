@@ -51,15 +51,16 @@ def reversed_starts(thetas, n_starts: int, rng: np.random.Generator) -> np.ndarr
 
 
 def greedy_clusters(
+    theta: np.ndarray,
     cost: np.ndarray,
     directions: np.ndarray,
     ln_periods: np.ndarray,
     direction_tol_deg: float,
     period_tol: float,
     max_clusters: int,
-) -> list[tuple[int, int]]:
-    """Greedy clustering of optima, best (lowest ``cost``) first: (index of the cluster's
-    best optimum, members) per cluster.
+) -> list[tuple[np.ndarray, float, int]]:
+    """Greedy clustering of optima ``theta`` (K, P), best (lowest ``cost``) first: the
+    cluster's best optimum, its cost and its members per cluster.
 
     Each optimum joins the first cluster whose best has its direction (K, 3; a pole or an
     angular momentum, any length) within ``direction_tol_deg`` and every log period
@@ -89,7 +90,7 @@ def greedy_clusters(
         if len(heads) < max_clusters:
             heads.append(int(k))
             members.append(1)
-    return list(zip(heads, members, strict=True))
+    return [(theta[k], float(cost[k]), n) for k, n in zip(heads, members, strict=True)]
 
 
 def distinct_modes(
@@ -105,8 +106,9 @@ def distinct_modes(
     their periods within a fraction ``period_tol`` (:func:`greedy_clusters`); failed
     solves (infinite cost) are left out.
     """
-    clusters = greedy_clusters(cost, theta[:, :3], theta[:, 3], pole_tol_deg, period_tol, max_modes)
-    return [(theta[k], float(cost[k]), n) for k, n in clusters]
+    return greedy_clusters(
+        theta, cost, theta[:, :3], theta[:, 3], pole_tol_deg, period_tol, max_modes
+    )
 
 
 #: Distinct search optima kept for :func:`refinement_set`, per mode refined.

@@ -290,8 +290,7 @@ def distinct_tumbles(
     inv = motion_invariants(inertia, omega)
     ln_p = np.log(np.stack([inv["body_period_s"], inv["precession_period_s"]], axis=1))
     ell = unit_vectors(*angular_momentum_radec_deg(inertia, omega, q))
-    clusters = greedy_clusters(cost, ell, ln_p, l_tol_deg, period_tol, max_modes)
-    return [(theta[k], float(cost[k]), n) for k, n in clusters]
+    return greedy_clusters(theta, cost, ell, ln_p, l_tol_deg, period_tol, max_modes)
 
 
 def tumble_multistart(
