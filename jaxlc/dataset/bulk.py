@@ -183,9 +183,13 @@ def render_class(config, cls, prepared: list[Prepared], instants: list | None = 
         got = _evaluate(config, cls, objs, ins, relative=True)
         return [g[: len(probe.t_s)] for g, (_, probe) in zip(got, requests, strict=True)]
 
-    prepared = adapt(prepared, probes)
+    prepared = adapt(prepared, probes, instants=False)  # only the refined means are kept
     if instants is not None:
-        instants += [len(p.exposures.t_s) / max(p.exposures.n_rows, 1) for p in prepared]
+        instants += [
+            (p.refinement.instants if p.refinement else len(p.exposures.t_s))
+            / max(p.exposures.n_rows, 1)
+            for p in prepared
+        ]
     fixed = [j for j, p in enumerate(prepared) if p.refinement is None]
     sums = _evaluate(
         config, cls, [prepared[j].object for j in fixed], [prepared[j].inputs for j in fixed], False

@@ -39,6 +39,7 @@ weights, which the one kernel entry evaluates like any other.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
 import numpy as np
@@ -90,22 +91,30 @@ class Refinement:
     """What :func:`refine` found for one curve.
 
     Attributes:
-        exposures: the final instants (level ``level[i]`` for exposure i).
+        curve: the curve refined.
         intensity: (N,) mean I/E over each exposure at its final level (m² sr⁻¹).
         level: (N,) final level (:func:`~jaxlc.rendering.patterson.level_count` instants).
         error: (N,) estimated error of ``intensity`` (m² sr⁻¹; 0 at level 0).
         capped: exposures that reached the last level without meeting the tolerance.
     """
 
-    exposures: Exposures
+    curve: Curve
     intensity: np.ndarray
     level: np.ndarray
     error: np.ndarray
     capped: int
 
+    @functools.cached_property
+    def exposures(self) -> Exposures:
+        """The final instants (level ``level[i]`` for exposure i), made when first asked
+        for: dataset generation keeps only the intensity (S5: ~7 ms a curve saved)."""
+        c = self.curve
+        return nested_instants(c.geo, c.rows, self.level, c.t0_s)
+
     @property
     def instants(self) -> int:
-        return len(self.exposures.t_s)
+        counts = np.array([level_count(k) for k in range(int(self.level.max(initial=0)) + 1)])
+        return int(counts[self.level].sum())
 
     def describe(self) -> str:
         n = max(len(self.level), 1)
@@ -192,7 +201,7 @@ def refine(
     for c, m, lv, e, a in zip(curves, mean, level, error, active, strict=True):
         out.append(
             Refinement(
-                exposures=nested_instants(c.geo, c.rows, lv, c.t0_s),
+                curve=c,
                 intensity=m,
                 level=lv,
                 error=e,

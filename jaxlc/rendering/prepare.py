@@ -343,7 +343,11 @@ def probe_inputs(prepared: Prepared, probe: Exposures, pad: bool = True) -> Kern
 
 
 def adapt(
-    prepared: list[Prepared], evaluate, pad_rows: bool = False, least_levels: bool = False
+    prepared: list[Prepared],
+    evaluate,
+    pad_rows: bool = False,
+    least_levels: bool = False,
+    instants: bool = True,
 ) -> list[Prepared]:
     """The adaptive sub-exposures (:mod:`jaxlc.rendering.adaptive`) of curves whose plan asks
     for them; the others are returned as they are.
@@ -355,6 +359,10 @@ def adapt(
         pad_rows: pad the new kernel inputs to :func:`bucket_size` rows.
         least_levels: refine from one level finer than usual, then give each exposure
             its least level within tolerance (``refine``'s option; a fit's model).
+        instants: give each refined curve its final instants and kernel inputs; False
+            attaches only the :class:`~jaxlc.rendering.adaptive.Refinement` (its
+            intensity per exposure), the exposures and inputs staying the plan's:
+            for callers that use nothing else (dataset generation).
     """
     todo = [i for i, p in enumerate(prepared) if p.adaptive and p.exposures.n_rows]
     if not todo:
@@ -381,9 +389,8 @@ def adapt(
     )
     out = list(prepared)
     for i, r in zip(todo, found, strict=True):
-        out[i] = dataclasses.replace(
-            with_exposures(prepared[i], r.exposures, pad_rows), refinement=r
-        )
+        own = with_exposures(prepared[i], r.exposures, pad_rows) if instants else prepared[i]
+        out[i] = dataclasses.replace(own, refinement=r)
     return out
 
 
