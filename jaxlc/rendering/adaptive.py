@@ -52,6 +52,7 @@ from jaxlc.rendering.patterson import (
     error_divisor,
     largest_gap,
     level_count,
+    level_counts,
     stacked_weights,
 )
 
@@ -113,8 +114,7 @@ class Refinement:
 
     @property
     def instants(self) -> int:
-        counts = np.array([level_count(k) for k in range(int(self.level.max(initial=0)) + 1)])
-        return int(counts[self.level].sum())
+        return int(level_counts(self.level).sum())
 
     def describe(self) -> str:
         n = max(len(self.level), 1)

@@ -17,7 +17,7 @@ import numpy as np
 
 from jaxlc.errors import JaxlcError
 from jaxlc.rendering.observation import GeometryArrays
-from jaxlc.rendering.patterson import level_count, level_rule
+from jaxlc.rendering.patterson import level_counts, level_rule
 
 QUADRATURES = ("midpoint", "endpoints")
 
@@ -130,7 +130,7 @@ def nested_instants(geo: GeometryArrays, rows, levels, t0_s: float = 0.0) -> Exp
     rows = np.asarray(rows, np.int64)
     levels = np.asarray(levels, np.int64)
     n = len(rows)
-    counts = np.array([level_count(k) for k in range(int(levels.max(initial=0)) + 1)])[levels]
+    counts = level_counts(levels)
     owner = np.repeat(np.arange(n), counts)
     # position of each instant within its exposure, then the rule's node of that level
     start = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)

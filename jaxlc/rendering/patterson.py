@@ -81,6 +81,12 @@ def level_count(level: int) -> int:
     return NESTED_COUNTS[-1] * 2 ** (k - NESTED_LEVELS)
 
 
+def level_counts(levels) -> np.ndarray:
+    """(N,) points of each level's rule for (N,) integer levels (:func:`level_count`)."""
+    levels = np.asarray(levels, np.int64)
+    return np.array([level_count(k) for k in range(int(levels.max(initial=0)) + 1)])[levels]
+
+
 @functools.cache
 def level_rule(level: int) -> tuple[np.ndarray, np.ndarray]:
     """(fractions of the exposure (n,), weights (n,)) of a level's rule, sorted."""
