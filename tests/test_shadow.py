@@ -164,7 +164,7 @@ def test_exact_twin_roof_shadow(dx, dy):
 def test_convex_scene_has_no_shadow_work_and_identical_output():
     scene = jaxlc.load_scene(SCENES / "s3_cylinder.toml")
     obj = space_object(scene, None, shadow=ShadowSettings())
-    assert obj.shadow is None and obj.free == 0
+    assert obj.shadow is None
     geo = jaxlc.synthetic_geometry(duration_s=200, phase_start_deg=10, phase_end_deg=150)
     a = jaxlc.render(scene, geo, options=RenderOptions(shadows="auto"))
     b = jaxlc.render(scene, geo, options=RenderOptions(shadows="off"))
@@ -172,14 +172,19 @@ def test_convex_scene_has_no_shadow_work_and_identical_output():
 
 
 def test_facets_that_cannot_be_shadowed_carry_no_data_and_recombine_exactly():
-    """S4: free facets first, shadowable ones after; with every bit set (nothing
-    blocked) the weighted sum equals the unshadowed one."""
+    """S4: shadowable facets first (the table's order), the others after; with every bit
+    set (nothing blocked) the weighted sum equals the unshadowed one."""
     scene = jaxlc.load_scene(SCENES / "s4_falcon9.toml")
     f = scene.facets
     with jax.enable_x64(True):
         obj = space_object(scene, None, jnp.float64, shadow=ShadowSettings(grid=8))
-        assert obj.free == int((~f.can_shadow).sum()) and obj.model.n_facets == f.n_facets
-        assert int(f.can_shadow.sum()) == obj.shadow.subpoints.shape[0]
+        assert obj.model.n_facets == f.n_facets
+        shadowed = sum(n for n, _ in obj.shadow.groups)
+        assert shadowed == int(f.can_shadow.sum())
+        # the table's facets lead, the others follow (S4 has facets of both kinds)
+        np.testing.assert_array_equal(
+            np.asarray(obj.model.normals[shadowed:]), f.normals[~f.can_shadow]
+        )
         import equinox as eqx
 
         # every sub-point sees everything
@@ -382,17 +387,24 @@ def test_binned_occlusion_equals_all_pairs(name, cull_back):
     assert 0.05 < blocked / (12 * len(points)) < 0.95  # both outcomes are exercised
 
 
+@pytest.mark.parametrize("shared", [True, False])
 @pytest.mark.parametrize("interpolation", ["bilinear", "triangle"])
-def test_shared_words_fraction_equals_unpacked_bits(monkeypatch, interpolation):
-    """A mesh over the budget gets 1–16 sub-points per facet, several facets to a
-    word: the kernel's fractions equal counting the unpacked bits facet by facet."""
-    monkeypatch.setattr(shadow_module, "SUBPOINT_BUDGET", 12)  # 192 at an 8 × 8 grid
+def test_fraction_equals_unpacked_bits(monkeypatch, interpolation, shared):
+    """The kernel's fractions equal counting the unpacked bits facet by facet, for a
+    mesh over the budget (1–16 sub-points per facet, several facets to a word) and
+    for one within it (32, 128 and 512: a facet over several words, which the
+    device copy reorders word by word)."""
+    if shared:
+        monkeypatch.setattr(shadow_module, "SUBPOINT_BUDGET", 12)  # 192 at an 8 × 8 grid
     scene = jaxlc.load_scene(SCENES / "s6_boxwing.toml")
     mesh, f = scene.body
     data = shadow_data(
         mesh, f, ShadowSettings(grid=8, interpolation=interpolation), use_cache=False
     )
-    assert data.subpoints <= 192 and data.counts.min() < 32 and len(data.groups) > 1
+    if shared:
+        assert data.subpoints <= 192 and data.counts.min() < 32 and len(data.groups) > 1
+    else:
+        assert data.counts.min() == 32 and data.counts.max() > 64 and len(data.groups) > 2
     rng = np.random.default_rng(2)
     s, v = random_unit_vectors(rng, 64), random_unit_vectors(rng, 64)
     table = shadow_table(dataclasses.replace(data, key=""), jnp.float32)

@@ -4,7 +4,8 @@
 can be shadowed; here the kernel looks them up: the lit *and* seen fraction of
 facet f is Σ_ab w_a(s) w_b(v) popcount(B_f[a] & B_f[b]) / K over the grid corners
 a of the Sun direction s and b of the observer direction v (interpolation weights,
-:func:`jaxlc.body.octahedral.grid_corners`).
+:func:`jaxlc.body.octahedral.grid_corners`), computed per column (a word, or a facet
+that shares words: :func:`lit_seen_columns`).
 """
 
 from __future__ import annotations
@@ -26,49 +27,115 @@ class ShadowTable(eqx.Module):
     """Packed visibility bits of the facets that can be shadowed (traced input).
 
     Attributes:
-        bits: (D, W) uint32 (see :class:`jaxlc.body.shadow.ShadowData`); bit b of a word says
-            whether that sub-point sees the grid direction of the row.
-        subpoints: (F_s,) sub-points per facet.
+        bits: (D, W) uint32 (see :class:`jaxlc.body.shadow.ShadowData`, its words in the
+            order of :func:`word_major`); bit b of a word says whether that sub-point sees
+            the grid direction of the row.
+        divisor: (V,) sub-points of the facet that owns each column of the look-up
+            (:func:`column_divisors`).
         groups: ((facets, sub-points per facet), …) runs of the word layout.
         grid: octahedral grid side N (D = N²).
         interpolation: one of :data:`jaxlc.body.shadow.INTERPOLATIONS`.
     """
 
     bits: UInt32[Array, "D W"]
-    subpoints: Float[Array, " F"]
+    divisor: Float[Array, " V"]
     groups: tuple[tuple[int, int], ...] = eqx.field(static=True)
     grid: int = eqx.field(static=True)
     interpolation: str = eqx.field(static=True)
 
 
-def lit_seen_fraction(
+def lit_seen_columns(
     table: ShadowTable, sun_b: Float[Array, "T 3"], obs_b: Float[Array, "T 3"]
-) -> Float[Array, "T F"]:
-    """Fraction of each shadowable facet both lit and seen, (T, F_s) in [0, 1]."""
+) -> Float[Array, "T V"]:
+    """Each column's share of its facet's lit-and-seen fraction, (T, V) in [0, 1].
+
+    A column is a facet that shares its words with others, or one 32-point word of a
+    facet with whole words; a facet's fraction is the sum of its columns
+    (:func:`run_fraction`). Every column is one element of a
+    single fused loop over the gathered rows: summing a facet's words in the same
+    loop (slices, reshapes, a concatenation) made XLA keep the gathered rows in
+    memory, and the S4 look-up 2.3× slower. The kernel sums them in its next pass.
+    """
     idx_s, w_s = grid_corners(sun_b, table.grid, table.interpolation)
     idx_v, w_v = grid_corners(obs_b, table.grid, table.interpolation)
     dtype = sun_b.dtype
-    c = idx_s.shape[1]
-    rows = table.bits[jnp.concatenate([idx_s, idx_v], axis=1)]  # one gather: (T, 2C, W)
+    rows_s = [table.bits[idx_s[:, a]] for a in range(idx_s.shape[1])]  # (T, W) per corner
+    rows_v = [table.bits[idx_v[:, b]] for b in range(idx_v.shape[1])]
+
+    def weighted(count, lo, hi):
+        total = 0.0
+        for a, row_s in enumerate(rows_s):
+            for b, row_v in enumerate(rows_v):
+                w = (w_s[:, a] * w_v[:, b])[:, None]
+                total = total + w * count(row_s[:, lo:hi] & row_v[:, lo:hi])
+        return total
+
     shared = tuple(g for g in table.groups if g[1] < 32)  # runs that share words: first
     split = sum(-(-n * k // 32) for n, k in shared)
-    count_shared, count = 0.0, 0.0
-    for a in range(c):
-        for b in range(c):
-            both = rows[:, a] & rows[:, c + b]
-            w = (w_s[:, a] * w_v[:, b])[:, None]
-            if shared:
-                count_shared = count_shared + w * _slot_counts(both[:, :split], shared, dtype)
-            if split < table.bits.shape[1]:
-                count = count + w * jax.lax.population_count(both[:, split:]).astype(dtype)
-    parts, start = ([count_shared] if shared else []), 0
-    for n_facets, k in table.groups[len(shared) :]:  # sum each facet's words: a static reshape
-        words = k // 32
-        block = count[:, start : start + n_facets * words]
-        parts.append(block if words == 1 else block.reshape(-1, n_facets, words).sum(-1))
-        start += n_facets * words
-    per_facet = parts[0] if len(parts) == 1 else jnp.concatenate(parts, axis=1)
-    return per_facet / table.subpoints.astype(dtype)[None, :]
+    parts = [weighted(lambda x: _slot_counts(x, shared, dtype), 0, split)] if shared else []
+    if split < table.bits.shape[1]:
+        count = lambda x: jax.lax.population_count(x).astype(dtype)  # noqa: E731
+        parts.append(weighted(count, split, table.bits.shape[1]))
+    columns = parts[0] if len(parts) == 1 else jnp.concatenate(parts, axis=1)
+    return columns / table.divisor.astype(dtype)[None, :]
+
+
+def facet_runs(table: ShadowTable) -> list[tuple[int, int, int, int]]:
+    """(first column, first facet, facets, columns per facet) of each run of the table's
+    layout: the facets with one column each (those sharing words, then those with one
+    word) in one run, then one run per group of facets with several words."""
+    single = sum(n for n, k in table.groups if k <= 32)
+    runs = [(0, 0, single, 1)] if single else []
+    column, facet = single, single
+    for n_facets, k in table.groups:
+        if k > 32:
+            runs.append((column, facet, n_facets, k // 32))
+            column, facet = column + n_facets * (k // 32), facet + n_facets
+    return runs
+
+
+def run_fraction(columns: Float[Array, "T V"], run: tuple[int, int, int, int]):
+    """(T, facets) lit-and-seen fraction of the facets of one run of :func:`facet_runs`:
+    the sum of its facets' columns, which the device copy lays out word by word
+    (:func:`word_major`), so the sum is one of contiguous slices. (A reshape and a
+    sum over the words made the S6 look-up 6.5× slower in XLA:CPU.)"""
+    column, _, n_facets, words = run
+    total = columns[:, column : column + n_facets]
+    for j in range(1, words):
+        total = total + columns[:, column + j * n_facets : column + (j + 1) * n_facets]
+    return total
+
+
+def column_divisors(groups: tuple[tuple[int, int], ...]) -> np.ndarray:
+    """(V,) sub-points of the facet that owns each column of :func:`lit_seen_columns`."""
+    return np.concatenate([np.full(n if k < 32 else n * (k // 32), float(k)) for n, k in groups])
+
+
+def word_major(groups: tuple[tuple[int, int], ...]) -> np.ndarray:
+    """(W,) the stored words (:class:`jaxlc.body.shadow.ShadowData`: a facet's words in a
+    row) in the device copy's order: in each group of facets with several words, first
+    every facet's first word, then every facet's second, …"""
+    order, start = [], 0
+    for n_facets, k in groups:
+        if k < 32:
+            n_words = -(-n_facets * k // 32)
+            order.append(start + np.arange(n_words))
+        else:
+            words = k // 32
+            n_words = n_facets * words
+            order.append(start + np.arange(n_words).reshape(n_facets, words).T.reshape(-1))
+        start += n_words
+    return np.concatenate(order)
+
+
+def lit_seen_fraction(
+    table: ShadowTable, sun_b: Float[Array, "T 3"], obs_b: Float[Array, "T 3"]
+) -> Float[Array, "T F"]:
+    """Fraction of each shadowable facet both lit and seen, (T, F_s) in [0, 1]: the sum
+    of its columns (:func:`lit_seen_columns`)."""
+    columns = lit_seen_columns(table, sun_b, obs_b)
+    parts = [run_fraction(columns, run) for run in facet_runs(table)]
+    return parts[0] if len(parts) == 1 else jnp.concatenate(parts, axis=1)
 
 
 def _slot_counts(words, groups, dtype):
@@ -89,9 +156,10 @@ def shadow_table(data: ShadowData, dtype=jnp.float32) -> ShadowTable:
     memo = (data.key, data.settings.interpolation, str(np.dtype(dtype))) if data.key else None
     if memo in _TABLES:
         return _TABLES[memo]
+    order = word_major(data.groups)
     table = ShadowTable(
-        bits=jnp.asarray(data.bits),
-        subpoints=jnp.asarray(data.counts, dtype=dtype),
+        bits=jnp.asarray(data.bits[:, order]),
+        divisor=jnp.asarray(column_divisors(data.groups), dtype=dtype),
         groups=data.groups,
         grid=data.settings.grid,
         interpolation=data.settings.interpolation,

@@ -54,13 +54,13 @@ def class_flags(cls) -> dict:
     }
 
 
-def _one(model, attitude, shadow, inputs, free):
-    return exposure_intensity(SpaceObject(model, attitude, shadow, free), inputs)
+def _one(model, attitude, shadow, inputs):
+    return exposure_intensity(SpaceObject(model, attitude, shadow), inputs)
 
 
 @functools.cache
 def batch_kernel(sequential: bool):
-    """Jitted (B, T) exposure sums of B blocks of one class (static: the free-facet count).
+    """Jitted (B, T) exposure sums of B blocks of one class.
 
     The kernel's own time chunk serves batches too (measured with a 64 × 64 shadow grid:
     blocks of 32 instants, once 15 % faster, made S4 1.6× and S6 1.4× slower; a
@@ -71,14 +71,14 @@ def batch_kernel(sequential: bool):
     """
     if sequential:
 
-        def f(models, attitudes, shadow, inputs, free):
+        def f(models, attitudes, shadow, inputs):
             return jax.lax.map(
-                lambda a: _one(a[0], a[1], shadow, a[2], free), (models, attitudes, inputs)
+                lambda a: _one(a[0], a[1], shadow, a[2]), (models, attitudes, inputs)
             )
 
     else:
-        f = jax.vmap(_one, in_axes=(0, 0, None, 0, None))
-    return jit(f, static_argnums=(4,))
+        f = jax.vmap(_one, in_axes=(0, 0, None, 0))
+    return jit(f)
 
 
 def _stack(trees):
@@ -121,7 +121,7 @@ def _evaluate(config, cls, objects, inputs, relative: bool) -> list[np.ndarray]:
         return out
     first = np.concatenate([[0], np.cumsum(-(-n_inst // t_len))[:-1]])
     offset = (np.arange(len(curve)) - first[curve]) * t_len  # block → its first instant
-    shadow, free = objects[0].shadow, objects[0].free
+    shadow = objects[0].shadow
     kernel = batch_kernel(shadow is not None)
     # every curve's model, attitude and instants gathered once; a batch takes its rows
     models = _stack(pad_models([o.model for o in objects], class_flags(cls)))
@@ -148,7 +148,7 @@ def _evaluate(config, cls, objects, inputs, relative: bool) -> list[np.ndarray]:
             subsamples=None,
         )
         pick = functools.partial(jax.tree_util.tree_map, lambda x: x[j])  # noqa: B023
-        got = np.asarray(kernel(pick(models), pick(attitudes), shadow, stacked, free), np.float64)
+        got = np.asarray(kernel(pick(models), pick(attitudes), shadow, stacked), np.float64)
         for r in range(real):  # a curve's blocks in order: fixed sums
             c = j[r]
             if relative:

@@ -18,6 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxlc.inference.data import FitData, soft_clip
+from jaxlc.inference.householder import HouseholderQR, projection_norm2
 from jaxlc.inference.model import SpinModel
 from jaxlc.xla import filter_jit
 
@@ -125,6 +126,16 @@ def stalling_lm():
     return StallingLevenbergMarquardt
 
 
+def lm_solver(stall: bool):
+    """The fit's Levenberg–Marquardt (:func:`stalling_lm` with ``stall``, else optimistix's
+    own) with its steps solved by :class:`~jaxlc.inference.householder.HouseholderQR`:
+    no LAPACK call in the loop (a batched one could hang XLA's thread pool)."""
+    import optimistix as optx
+
+    kind = stalling_lm() if stall else optx.LevenbergMarquardt
+    return kind(rtol=1e-5, atol=1e-6, linear_solver=HouseholderQR())
+
+
 def promised_reduction(jac, residual, xp=jnp):
     """‖r‖² − min_s ‖r + J s‖²: what the undamped Gauss–Newton step promises to take off
     the sum of squares of ``residual`` (N,) with Jacobian ``jac`` (N, P) (columns scaled
@@ -132,9 +143,7 @@ def promised_reduction(jac, residual, xp=jnp):
     of a pole vector, are left out by the least-squares solve). ``xp``: ``jax.numpy``
     inside a solver, ``numpy`` on the host (:func:`jaxlc.inference.laplace.gauss_newton`)."""
     norm = xp.sqrt(xp.sum(jac**2, axis=0, keepdims=True))
-    scaled = jac / xp.where(norm > 0, norm, 1.0)
-    step = xp.linalg.lstsq(scaled, residual)[0]
-    return xp.sum((scaled @ step) ** 2)
+    return projection_norm2(jac / xp.where(norm > 0, norm, 1.0), residual, xp)
 
 
 @filter_jit
@@ -156,7 +165,7 @@ def _solve(model: SpinModel, mag, weight, starts, budget, max_steps: int, batch:
     def residuals(theta, _args):
         return plain(theta)
 
-    solver = (stalling_lm() if stall else optx.LevenbergMarquardt)(rtol=1e-5, atol=1e-6)
+    solver = lm_solver(stall)
 
     def run(start):
         y0, b = start

@@ -85,14 +85,26 @@ def _from_chart(y, basis, ref, rate_ref, s_start):
 
     def step(s, _):
         jac, (f, _ok) = newton(s)
-        ds = -jnp.linalg.solve(jac, f)
+        ds = -_solve2(jac, f)
         scale = MAX_STEP * jnp.linalg.norm(omega(s)) / (jnp.linalg.norm(ds) + 1e-300)
         return s + ds * jnp.minimum(1.0, scale), None
 
     s, _ = jax.lax.scan(step, s_start, None, length=NEWTON_STEPS)
     jac, (f, ok) = newton(s)
     old = jnp.concatenate([y[0:2], omega(s), y[5:9]])
-    return old, -jnp.log(jnp.abs(jnp.linalg.det(jac))), ok & jnp.all(jnp.abs(f) < NEWTON_TOL)
+    return old, -jnp.log(jnp.abs(_det2(jac))), ok & jnp.all(jnp.abs(f) < NEWTON_TOL)
+
+
+def _det2(a):
+    """Determinant of a 2 × 2 matrix, written out: a batched LAPACK call under ``vmap``
+    waits on XLA's thread pool and can hang it (see :mod:`jaxlc.inference.householder`)."""
+    return a[0, 0] * a[1, 1] - a[0, 1] * a[1, 0]
+
+
+def _solve2(a, b):
+    """x with a x = b for a 2 × 2 ``a`` (Cramer's rule; no LAPACK call, see :func:`_det2`)."""
+    det = _det2(a)
+    return jnp.stack([a[1, 1] * b[0] - a[0, 1] * b[1], a[0, 0] * b[1] - a[1, 0] * b[0]]) / det
 
 
 _to_chart_many = jax.jit(jax.vmap(_to_chart, in_axes=(0, None, None, None)))

@@ -21,7 +21,7 @@ from jaxtyping import Array, Float, Int, PyTree
 
 from jaxlc.body.attitude import AbstractAttitude
 from jaxlc.body.facet_model import FacetModel, facet_intensity, pad_models
-from jaxlc.body.shadow_lookup import ShadowTable, lit_seen_fraction
+from jaxlc.body.shadow_lookup import ShadowTable, facet_runs, lit_seen_columns, run_fraction
 from jaxlc.errors import JaxlcError
 
 #: Target size of one (time chunk × facets) block, in elements (~1 MB of float32).
@@ -32,18 +32,16 @@ class SpaceObject(eqx.Module):
     """Everything about the object that the kernel traces.
 
     Attributes:
-        model: all facets. With shadows, those that cannot be shadowed come
-            first and the ``shadow`` table's facets follow, in its order.
+        model: all facets. With shadows, those that can be shadowed come first, in
+            the ``shadow`` table's order, and those that cannot follow.
         attitude: body → inertial rotation over time.
         shadow: visibility table of the facets that can be shadowed
             (:mod:`jaxlc.body.shadow_lookup`), or None (no shadow work).
-        free: number of leading facets that cannot be shadowed (static).
     """
 
     model: FacetModel
     attitude: AbstractAttitude
     shadow: ShadowTable | None = None
-    free: int = eqx.field(static=True, default=0)
 
     @property
     def n_facets(self) -> int:
@@ -96,15 +94,15 @@ def body_intensity(
     """
     if obj.shadow is None:
         return facet_intensity(obj.model, sun_b, obs_b)
-    return _weighted_intensity(obj, sun_b, obs_b, lit_seen_fraction(obj.shadow, sun_b, obs_b))
+    return _weighted_intensity(obj, sun_b, obs_b, lit_seen_columns(obj.shadow, sun_b, obs_b))
 
 
-def _weighted_intensity(obj: SpaceObject, sun_b, obs_b, frac):
-    """The facet sum with the shadowable facets weighted by ``frac`` (T, F_s)."""
-    n_t, n_pad = frac.shape[0], obj.model.n_facets - obj.free - frac.shape[1]
-    # Weight exactly 1 for facets that cannot be shadowed (and for padding).
-    ones = lambda n: jnp.ones((n_t, n), frac.dtype)  # noqa: E731
-    weights = jnp.concatenate([ones(obj.free), frac, ones(n_pad)], axis=1)
+def _weighted_intensity(obj: SpaceObject, sun_b, obs_b, columns):
+    """The facet sum with the shadowable facets weighted by their lit-and-seen fraction,
+    the sum of their ``columns`` (T, V) of the table (1 for the other facets)."""
+    parts = [run_fraction(columns, run) for run in facet_runs(obj.shadow)]
+    n_t, n_rest = columns.shape[0], obj.model.n_facets - sum(p.shape[1] for p in parts)
+    weights = jnp.concatenate([*parts, jnp.ones((n_t, n_rest), columns.dtype)], axis=1)
     return facet_intensity(obj.model, sun_b, obs_b, weights=weights)
 
 
@@ -161,7 +159,7 @@ def light_curve_intensity(
     # which then runs 2-3× slower (measured); the fractions are small to keep.
     def lit_seen(a):
         s_b, v_b = to_body(a)
-        return s_b, v_b, lit_seen_fraction(obj.shadow, s_b, v_b)
+        return s_b, v_b, lit_seen_columns(obj.shadow, s_b, v_b)
 
     per_chunk = jax.lax.map(lit_seen, args)
     out = jax.lax.map(lambda a: _weighted_intensity(obj, *a), per_chunk)
@@ -217,13 +215,11 @@ def stack_objects(objects: list[SpaceObject]) -> SpaceObject:
             "stack_objects: mix of objects with and without shadows; render them apart"
         )
     if True in shadowed:
-        layouts = {(o.shadow.bits.shape, o.shadow.groups, o.free) for o in objects}
+        layouts = {(o.shadow.bits.shape, o.shadow.groups) for o in objects}
         if len(layouts) > 1:
             raise JaxlcError(
                 "stack_objects: shadowed objects must share one mesh (one table layout)"
             )
     models = pad_models([o.model for o in objects])
-    padded = [
-        SpaceObject(m, o.attitude, o.shadow, o.free) for m, o in zip(models, objects, strict=True)
-    ]
+    padded = [SpaceObject(m, o.attitude, o.shadow) for m, o in zip(models, objects, strict=True)]
     return jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *padded)

@@ -99,15 +99,13 @@ def space_object(
     if data is None:
         model = facet_model(facets, materials, dtype=dtype, area_scale=area_scale)
         return SpaceObject(model=_lanes(model), attitude=attitude)
-    free = np.flatnonzero(~facets.can_shadow)
-    order = np.concatenate([free, data.facet_ids])
+    order = np.concatenate([data.facet_ids, np.flatnonzero(~facets.can_shadow)])
     return SpaceObject(
         model=_lanes(
             facet_model(facets.subset(order), materials, dtype=dtype, area_scale=area_scale)
         ),
         attitude=attitude,
         shadow=shadow_table(data, dtype),
-        free=len(free),
     )
 
 
