@@ -531,27 +531,34 @@ def test_batches_cover_every_block_once():
 
 def test_a_curve_does_not_depend_on_its_batch_neighbours(config_path):
     """A class's curves rendered together (in several batches and a padded tail batch,
-    adaptive probes and all) give each curve exactly what it gets rendered alone."""
+    adaptive probes and all) give each curve exactly what it gets rendered alone, and
+    an adaptive curve does not depend on its plan's instants (a shard leaves them out)."""
     from jaxlc.dataset.bulk import render_class
     from jaxlc.dataset.draw import curve_geometry, curve_scene
 
     config = load_config(config_path)
     curves = [c for c in (dataset.draw_curve(config, i) for i in range(config.count))]
+    adaptive = 0
     for class_id in range(len(config.classes)):
         mine = [c for c in curves if c.class_id == class_id][:6]
 
-        def prepared(cs):
+        def prepared(cs, plan_instants=True):
             return [
                 jaxlc.prepare(
-                    jaxlc.scene_from_dict(curve_scene(config, c)), curve_geometry(config, c).arrays
+                    jaxlc.scene_from_dict(curve_scene(config, c)),
+                    curve_geometry(config, c).arrays,
+                    plan_instants=plan_instants,
                 )
                 for c in cs
             ]
 
-        together = render_class(config, config.classes[class_id], prepared(mine))
+        shard_like = prepared(mine, False)
+        adaptive += sum(p.adaptive for p in shard_like)
+        together = render_class(config, config.classes[class_id], shard_like)
         for r, c in enumerate(mine):
             alone = render_class(config, config.classes[class_id], prepared([c]))[0]
             np.testing.assert_array_equal(together[r], alone)
+    assert adaptive > 0, "no curve of the test config asks for adaptive sub-exposures"
 
 
 def test_features_are_finite_where_visible(reference):
