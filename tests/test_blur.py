@@ -140,6 +140,51 @@ def test_nested_midpoint_refinement_against_an_analytic_integral():
     assert r.exposures.weight.sum() == pytest.approx(n)
 
 
+def test_facet_turning_off_mid_exposure_is_not_trusted_to_a_chance_agreement():
+    """A facet that turns off before mid-exposure (I/E falling linearly to zero at a
+    fraction a < 1/2, then zero): the midpoint sees nothing, and for some a the 3- and
+    7-point rules agree to 1e-4 while both are ~3 % off. The refinement must not stop
+    there: the exposure within the tolerance of the exact integral a/2."""
+    from jaxlc.rendering.adaptive import Curve, refine
+    from jaxlc.rendering.observation import GeometryArrays
+    from jaxlc.rendering.patterson import level_rule
+
+    def ramp(x, a):
+        return np.maximum(0.0, 1.0 - x / a)
+
+    def rule(k, a):
+        x, w = level_rule(k)
+        return w @ ramp(x, a)
+
+    grid = np.linspace(0.2, 0.499, 3000)  # the a where the two levels agree best
+    a = grid[np.argmin([abs(rule(2, b) - rule(1, b)) for b in grid])]
+    assert abs(rule(2, a) - rule(1, a)) < 1e-4 * a / 2 < 0.01 * a / 2 < abs(rule(2, a) - a / 2)
+    n, k = 8, 3  # exposure k holds the ramp; the others see a constant 1
+
+    def f(t):
+        return np.where(np.floor(t) == k, ramp(t - k, a), 1.0)
+
+    ones = np.tile([1.0, 0.0, 0.0], (n, 1))
+    geo = GeometryArrays(
+        **{
+            **{name: None for name in GeometryArrays.__dataclass_fields__},
+            "t_start_s": np.arange(n, dtype=float),
+            "exposure_s": np.ones(n),
+            "sun_dir": ones,
+            "obs_dir": ones,
+        }
+    )
+    (r,) = refine(
+        [Curve(geo, np.arange(n), 0.0)],
+        lambda probes: [f(p.t_s) for p in probes],
+        tolerance_mag=1e-3,
+        max_level=6,
+    )
+    truth = np.where(np.arange(n) == k, a / 2, 1.0)
+    assert np.all(np.abs(2.5 * np.log10(r.intensity / truth)) < 1e-3)
+    assert r.level[k] > 2 and np.all(np.delete(r.level, k) == 1)
+
+
 def test_least_levels_against_an_analytic_integral():
     """A fit's model keeps the least level that is resolved and close to the refined
     mean: a slow sinusoid with a narrow glint and a glint straddled by chance, every

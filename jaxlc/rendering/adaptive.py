@@ -13,6 +13,12 @@ the instants n, as across a kink — a shadow's interpolated edge — for any ru
 a smooth integrand converges far faster, and the estimate is then conservative)
 once the level's instants resolve the sharpest specular lobe, and D_k = 1
 before (:func:`divisor`: a glint between coarse instants converges erratically).
+Nor may it fall faster than (n_{k−1}/n_k)⁴ from the level below's own estimate
+(:data:`CARRY_POWER`): where a facet turns off mid-exposure, the midpoint may
+see nothing, and the 3- and 7-point rules then agree to 1e-5 while both are 2 %
+off (S3 and S6, one exposure each in 1,000 curves of the standard mix: 16 and 21
+mmag against 256 sub-exposures; 6.3 and 4.2 mmag with the carry, for 2–7 % more
+instants; the n⁻² law of a kink, p = 2, took 11–29 % more).
 
 Each exposure is refined on its own, level by level, until ε_k ≤ tol · max(Q_k,
 floor) with tol = tolerance_mag / 1.0857 (a relative flux error: that many
@@ -58,6 +64,9 @@ from jaxlc.rendering.patterson import (
 
 #: Fraction of a curve's median flux below which errors are held absolute (10 mag).
 FLOOR_FRACTION = 1e-4
+#: A level's estimated error is at least the level below's own estimate × (n_{k−1}/n_k)^p:
+#: two levels that agree by chance right after a large change are not trusted.
+CARRY_POWER = 4
 #: Share of the tolerance within which a coarser level must match the refined mean
 #: (:func:`least_level`).
 LEAST_LEVEL_MARGIN = 0.7
@@ -158,6 +167,7 @@ def refine(
         by_level = [np.column_stack([m, np.full((len(m), max_level), np.nan)]) for m in mean]
     level = [np.zeros(len(c.rows), np.int64) for c in curves]
     error = [np.zeros(len(c.rows)) for c in curves]
+    own = [np.zeros(len(c.rows)) for c in curves]  # each level's estimate from its own change
     floor = []
     for m in mean:
         pos = m[m > 0]
@@ -183,7 +193,9 @@ def refine(
             if not len(t):
                 continue
             m = got @ stacked_weights(k)
-            err = np.abs(m - mean[i][t]) / divisor(k, c.resolved_level)
+            change = np.abs(m - mean[i][t]) / divisor(k, c.resolved_level)
+            carried = own[i][t] * (level_count(k - 1) / level_count(k)) ** CARRY_POWER
+            err, own[i][t] = np.maximum(change, carried), change
             mean[i][t], level[i][t], error[i][t] = m, k, err
             if least_levels:
                 by_level[i][t, k] = m
