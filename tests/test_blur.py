@@ -103,7 +103,6 @@ def test_nested_midpoint_refinement_against_an_analytic_integral():
     from math import erf, sqrt
 
     from jaxlc.rendering.adaptive import Curve, refine
-    from jaxlc.rendering.observation import GeometryArrays
 
     n = 40
     t0 = np.arange(n, dtype=float)
@@ -118,16 +117,7 @@ def test_nested_midpoint_refinement_against_an_analytic_integral():
             erf((b - centre) / g) - erf((a - centre) / g)
         )
 
-    ones = np.tile([1.0, 0.0, 0.0], (n, 1))
-    geo = GeometryArrays(
-        **{
-            **{k: None for k in GeometryArrays.__dataclass_fields__},
-            "t_start_s": t0,
-            "exposure_s": np.ones(n),
-            "sun_dir": ones,
-            "obs_dir": ones,
-        }
-    )
+    geo = _unit_exposures(n)
     (r,) = refine(
         [Curve(geo, np.arange(n), 0.0, first_level=2)],
         lambda probes: [f(p.t_s) for p in probes],
@@ -146,7 +136,6 @@ def test_facet_turning_off_mid_exposure_is_not_trusted_to_a_chance_agreement():
     7-point rules agree to 1e-4 while both are ~3 % off. The refinement must not stop
     there: the exposure within the tolerance of the exact integral a/2."""
     from jaxlc.rendering.adaptive import Curve, refine
-    from jaxlc.rendering.observation import GeometryArrays
     from jaxlc.rendering.patterson import level_rule
 
     def ramp(x, a):
@@ -164,16 +153,7 @@ def test_facet_turning_off_mid_exposure_is_not_trusted_to_a_chance_agreement():
     def f(t):
         return np.where(np.floor(t) == k, ramp(t - k, a), 1.0)
 
-    ones = np.tile([1.0, 0.0, 0.0], (n, 1))
-    geo = GeometryArrays(
-        **{
-            **{name: None for name in GeometryArrays.__dataclass_fields__},
-            "t_start_s": np.arange(n, dtype=float),
-            "exposure_s": np.ones(n),
-            "sun_dir": ones,
-            "obs_dir": ones,
-        }
-    )
+    geo = _unit_exposures(n)
     (r,) = refine(
         [Curve(geo, np.arange(n), 0.0)],
         lambda probes: [f(p.t_s) for p in probes],
@@ -193,7 +173,6 @@ def test_least_levels_against_an_analytic_integral():
     from math import erf, sqrt
 
     from jaxlc.rendering.adaptive import Curve, refine
-    from jaxlc.rendering.observation import GeometryArrays
 
     n, sigma, period = 40, 0.03, 15.0
     centres = (17.3, 25.5)  # off-centre, and on the one instant of level 0
@@ -211,16 +190,7 @@ def test_least_levels_against_an_analytic_integral():
             50.0 * sigma * sqrt(np.pi / 2) * (erf((b - c) / g) - erf((a - c) / g)) for c in centres
         )
 
-    ones = np.tile([1.0, 0.0, 0.0], (n, 1))
-    geo = GeometryArrays(
-        **{
-            **{k: None for k in GeometryArrays.__dataclass_fields__},
-            "t_start_s": np.arange(n, dtype=float),
-            "exposure_s": np.ones(n),
-            "sun_dir": ones,
-            "obs_dir": ones,
-        }
-    )
+    geo = _unit_exposures(n)
     truth = np.array([exact(a, a + 1.0) for a in geo.t_start_s])
     runs = {}
     for least in (False, True):
@@ -312,3 +282,20 @@ def test_fixed_attitude_over_jumping_rows_gets_one_instant():
     geo[cols] = geo[cols].to_numpy()[order]
     lc = jaxlc.render(scene, geo)
     assert "1 per exposure" in lc.attrs["plan"]
+
+
+def _unit_exposures(n: int):
+    """Geometry of n back-to-back 1 s exposures starting at t = 0, 1, …, n − 1 (directions
+    unused: the analytic tests evaluate their own integrand at the instants)."""
+    from jaxlc.rendering.observation import GeometryArrays
+
+    ones = np.tile([1.0, 0.0, 0.0], (n, 1))
+    return GeometryArrays(
+        **{
+            **{name: None for name in GeometryArrays.__dataclass_fields__},
+            "t_start_s": np.arange(n, dtype=float),
+            "exposure_s": np.ones(n),
+            "sun_dir": ones,
+            "obs_dir": ones,
+        }
+    )
