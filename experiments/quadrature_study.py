@@ -42,7 +42,12 @@ sys.path.insert(0, str(HERE))
 from sbc_fit import pass_geometry  # noqa: E402
 
 import jaxlc  # noqa: E402
-from jaxlc.rendering.adaptive import MAG_PER_REL, first_level_for, max_level_for  # noqa: E402
+from jaxlc.rendering.adaptive import (  # noqa: E402
+    CARRY_POWER,
+    MAG_PER_REL,
+    first_level_for,
+    max_level_for,
+)
 from jaxlc.rendering.exposures import probe_instants  # noqa: E402
 from jaxlc.rendering.patterson import level_count, level_rule  # noqa: E402
 from jaxlc.rendering.prepare import adapt, prepare  # noqa: E402
@@ -71,13 +76,17 @@ def values_at(prep, fractions) -> np.ndarray:
 def replay(q: np.ndarray, counts, first: int, floor: float, resolved: int = 0):
     """Instants and estimate per exposure of the adaptive scheme over level estimates
     q (N, K) with ``counts`` instants per level (the law of
-    :func:`jaxlc.rendering.adaptive.refine`: D_k from level ``resolved`` on, else 1)."""
+    :func:`jaxlc.rendering.adaptive.refine`: D_k from level ``resolved`` on, else 1;
+    an estimate no smaller than the level below's × (n_{k−1}/n_k)^CARRY_POWER)."""
     tol = TOLERANCE_MAG / MAG_PER_REL
     n, k_max = q.shape
     accept = np.zeros((n, k_max), bool)
+    own = np.zeros(n)
     for k in range(1, k_max):
         law = (counts[k] / counts[k - 1]) ** 2 - 1.0 if k >= resolved else 1.0
-        err = np.abs(q[:, k] - q[:, k - 1]) / law
+        change = np.abs(q[:, k] - q[:, k - 1]) / law
+        err = np.maximum(change, own * (counts[k - 1] / counts[k]) ** CARRY_POWER)
+        own = change
         accept[:, k] = (k >= first) & (err <= tol * np.maximum(q[:, k], floor))
     accept[:, -1] = True
     level = np.argmax(accept, axis=1)
