@@ -23,7 +23,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import lineax as lx
-import numpy as np
+from jax.flatten_util import ravel_pytree
 
 from jaxlc.errors import JaxlcError
 
@@ -32,8 +32,8 @@ from jaxlc.errors import JaxlcError
 RANK_TOLERANCE = 1e-5
 
 
-def householder(a, b, xp=jnp, tol: float = 0.0):
-    """Householder QR of a tall ``a`` (M, P), M ≥ P, applied to ``b`` (M, …).
+def householder(a, b=None, xp=jnp, tol: float = 0.0):
+    """Householder QR of a tall ``a`` (M, P), M ≥ P, applied to ``b`` (M, …) if given.
 
     A column whose part outside the span of the columns kept before it is at most
     ``tol`` × its norm is left out (not reflected; with ``tol = 0`` only an exactly
@@ -41,7 +41,7 @@ def householder(a, b, xp=jnp, tol: float = 0.0):
     no combination of the columns explains, whatever the rank.
 
     Returns:
-        (R (P, P), Qᵀ b (M, …), reflectors (M, P), their factors (P,), the number of
+        (R (P, P), Qᵀ b (M, …) or None, reflectors (M, P), their factors (P,), the number of
         columns kept): column k's reflection is I − β_k v_k v_kᵀ with v_k the
         reflectors' column k (β_k = 0 for a column left out). With every column kept
         R is upper triangular.
@@ -62,7 +62,7 @@ def householder(a, b, xp=jnp, tol: float = 0.0):
         keep = (norm > tol * norms[k]) & (v2 > 0)
         beta = xp.where(keep, 2.0 / xp.where(v2 > 0, v2, 1.0), 0.0)
         a = a - beta * v[:, None] * (v @ a)[None, :]
-        b = _reflect(b, v, beta)
+        b = None if b is None else _reflect(b, v, beta)
         kept = kept + keep.astype(kept.dtype)
         vs.append(v)
         betas.append(beta)
@@ -115,22 +115,16 @@ class HouseholderQR(lx.AbstractLinearSolver):
 
     def init(self, operator, options):
         del options
-        matrix = operator.as_matrix()
-        r, _, vs, betas, _ = householder(matrix, jnp.zeros(matrix.shape[0], matrix.dtype))
+        r, _, vs, betas, _ = householder(operator.as_matrix())
         return _QRState(r, vs, betas, operator.in_structure())
 
     def compute(self, state, vector, options: dict[str, Any]):
         del options
-        flat = jnp.concatenate([jnp.ravel(x) for x in jax.tree_util.tree_leaves(vector)])
-        qtb = apply_qt(state.vs, state.betas, flat)
+        qtb = apply_qt(state.vs, state.betas, ravel_pytree(vector)[0])
         x = solve_upper(state.r, qtb[: state.r.shape[0]])
-        leaves, treedef = jax.tree_util.tree_flatten(state.structure)
-        sizes = np.cumsum([int(np.prod(s.shape)) for s in leaves])[:-1]
-        parts = [
-            part.reshape(s.shape).astype(s.dtype)
-            for part, s in zip(jnp.split(x, sizes), leaves, strict=True)
-        ]
-        return jax.tree_util.tree_unflatten(treedef, parts), lx.RESULTS.successful, {}
+        zeros = jax.tree_util.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), state.structure)
+        unravel = ravel_pytree(zeros)[1]
+        return unravel(x), lx.RESULTS.successful, {}
 
     def transpose(self, state, options):
         raise NotImplementedError("HouseholderQR solves are not transposed (LM only)")
