@@ -104,7 +104,14 @@ def batches(n_blocks: int, size: int) -> list[tuple[int, int]]:
     ]
 
 
-def _evaluate(config, cls, objects, inputs, relative: bool) -> list[np.ndarray]:
+def stacked_objects(cls, objects) -> tuple:
+    """(models, attitudes): every curve's padded model and attitude stacked (host arrays),
+    the rows a kernel batch takes."""
+    models = _stack(pad_models([o.model for o in objects], class_flags(cls)))
+    return models, _stack([o.attitude for o in objects])
+
+
+def _evaluate(config, objects, stacked, inputs, relative: bool) -> list[np.ndarray]:
     """Each curve's inputs cut into blocks (``config.samples`` instants; ``relative``:
     :func:`probe_block`), all blocks evaluated in :func:`batches`: per curve, the
     (samples,) sums of its output rows (``relative``: the (M,) values of its M instants).
@@ -112,6 +119,7 @@ def _evaluate(config, cls, objects, inputs, relative: bool) -> list[np.ndarray]:
     A block holds instants ``k … k + L − 1`` of one curve (padding past the curve's end
     repeats its last instant at weight zero); its output rows are the curve's (0 … L − 1
     must hold them), or with ``relative`` the block's own instants (one per instant).
+    ``stacked`` is :func:`stacked_objects` of ``objects``.
     """
     t_len = probe_block(config.samples) if relative else config.samples
     n_inst = np.array([len(i.weight) for i in inputs], np.int64)
@@ -124,8 +132,7 @@ def _evaluate(config, cls, objects, inputs, relative: bool) -> list[np.ndarray]:
     shadow = objects[0].shadow
     kernel = batch_kernel(shadow is not None)
     # every curve's model, attitude and instants gathered once; a batch takes its rows
-    models = _stack(pad_models([o.model for o in objects], class_flags(cls)))
-    attitudes = _stack([o.attitude for o in objects])
+    models, attitudes = stacked
     flat = _concat([(i.times, i.sun_dir, i.obs_dir, i.weight, i.row) for i in inputs])
     start = np.concatenate([[0], np.cumsum(n_inst)[:-1]])
     step = np.arange(t_len)
@@ -177,10 +184,18 @@ def render_class(config, cls, prepared: list[Prepared], instants: list | None = 
         (C, T) float64 I/E (m² sr⁻¹) of every rendered row; NaN on rows not rendered.
     """
 
+    stacks = {}  # the same curves' objects at every level: stacked once
+
+    def stacked(objs):
+        key = tuple(map(id, objs))
+        if objs and key not in stacks:
+            stacks[key] = stacked_objects(cls, objs)
+        return stacks.get(key)
+
     def probes(requests):
         objs = [p.object for p, _ in requests]
         ins = [probe_inputs(p, probe, pad=False) for p, probe in requests]
-        got = _evaluate(config, cls, objs, ins, relative=True)
+        got = _evaluate(config, objs, stacked(objs), ins, relative=True)
         return [g[: len(probe.t_s)] for g, (_, probe) in zip(got, requests, strict=True)]
 
     prepared = adapt(prepared, probes, instants=False)  # only the refined means are kept
@@ -191,9 +206,8 @@ def render_class(config, cls, prepared: list[Prepared], instants: list | None = 
             for p in prepared
         ]
     fixed = [j for j, p in enumerate(prepared) if p.refinement is None]
-    sums = _evaluate(
-        config, cls, [prepared[j].object for j in fixed], [prepared[j].inputs for j in fixed], False
-    )
+    objs = [prepared[j].object for j in fixed]
+    sums = _evaluate(config, objs, stacked(objs), [prepared[j].inputs for j in fixed], False)
     out = np.full((len(prepared), config.samples), np.nan)
     for j, s in zip(fixed, sums, strict=True):
         rows = prepared[j].exposures.rows

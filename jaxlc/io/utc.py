@@ -60,7 +60,15 @@ def utc_timestamp(value, where: str = "utc", error: type[Exception] = JaxlcError
         return value.tz_localize("UTC") if value.tzinfo is None else value.tz_convert("UTC")
     if not isinstance(value, str) or not value.strip():
         raise error(f"{where} = {value!r} is not an ISO 8601 UTC time like {EXAMPLE}")
-    return parse_utc([value], where, error)[0]
+    if value not in _PARSED:  # a dataset parses the same start once per curve (~1 ms each)
+        if len(_PARSED) >= 1024:
+            _PARSED.clear()
+        _PARSED[value] = parse_utc([value], where, error)[0]
+    return _PARSED[value]
+
+
+#: Times already parsed by :func:`utc_timestamp` (immutable Timestamps), by their text.
+_PARSED: dict[str, pd.Timestamp] = {}
 
 
 def format_utc(times) -> list[str]:
