@@ -30,10 +30,10 @@ three, and a glint or a shadow edge as many as it needs, up to the last level
 (reported when reached). Against the nested midpoints used before (3ᴸ
 instants, D = 8, the first level set by shadow edges too), over 10 random spins
 per class of the standard mix at 1 mmag (``experiments/quadrature_study.py``,
-against 729 midpoints): instants per exposure S3 8.4 → 4.9, S4 11.1 → 6.3, S5 65
-→ 50, S6 9.5 → 9.1; mean p95 error 0.67 → 0.15, 0.59 → 0.13, 1.09 → 0.22,
-1.03 → 0.53 mmag; curves with an exposure off by > 10 mmag 3 → 2 of 40 (worst
-1.09 mag → 15 mmag).
+against 729 midpoints; rerun with the carry): instants per exposure S3 8.4 → 5.7,
+S4 11.1 → 7.1, S5 66 → 54, S6 9.6 → 10.4; mean p95 error 0.67 → 0.11, 0.59 →
+0.09, 0.69 → 0.14, 1.00 → 0.40 mmag; curves with an exposure off by > 10 mmag 3 →
+0 of 40 (worst 1.09 mag → 5.9 mmag).
 
 The refinement is host logic around any evaluator of instants
 (:func:`refine`): :func:`jaxlc.render` evaluates one object, the dataset
