@@ -168,7 +168,8 @@ def study_curve(label: str, k: int, geo: pd.DataFrame, rng) -> list[dict]:
                 "max_mmag": float(err.max()),
             }
         )
-    rows[-1]["render_instants"] = done.instants / len(done.level)
+    # over the same exposures as the replay (dark ones, left out there, stop early)
+    rows[-1]["render_instants"] = float(np.mean(np.asarray(p_counts)[done.level[keep]]))
     rows[-1]["render_max_mmag"] = float(code_err[sel[keep]].max())
     return rows
 
