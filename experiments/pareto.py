@@ -222,7 +222,8 @@ def blur_rows(repeats_s, quick):
         # the per-curve rule's count (adaptive blur starts from it: blur_adaptive.py)
         n_auto = jaxlc.prepare(scene, geo_table).plan.subsamples
         base = curve_time(jaxlc.prepare(scene, geo_table, RenderOptions(blur="off")), repeats_s)
-        for n in sorted({1, 2, 4, 8, 16, 32, 64, n_auto}):
+        counts = (1, 8) if quick else (1, 2, 4, 8, 16, 32, 64)
+        for n in sorted({*counts, n_auto}):
             lc = jaxlc.render(scene, geo_table, options=RenderOptions(subsamples=n))
             dm = np.abs(lc["mag"][keep] - dense["mag"][keep]).to_numpy()
             sec = curve_time(
