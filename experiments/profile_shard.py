@@ -48,8 +48,8 @@ def main(argv=None) -> float:
     if prof:
         prof.disable()
     seconds = time.perf_counter() - start
-    rate = args.shards * config.shard_size / seconds
     curves = args.shards * config.shard_size
+    rate = curves / seconds
     print(f"{curves} curves in {args.shards} shards: {seconds:.2f} s, {rate:.1f} curves/s")
     if prof:
         for key in ("tottime", "cumulative"):

@@ -52,6 +52,8 @@ def parse_utc(values, where: str = "utc", error: type[Exception] = JaxlcError) -
 
 #: A written-out date: four-digit year, month and day (then anything pandas' ISO 8601 parser takes).
 _DATE = re.compile(r"\s*\d{4}-?\d{2}-?\d{2}")
+#: Times already parsed by :func:`utc_timestamp` (immutable Timestamps), by their text.
+_PARSED: dict[str, pd.Timestamp] = {}
 
 
 def utc_timestamp(value, where: str = "utc", error: type[Exception] = JaxlcError) -> pd.Timestamp:
@@ -65,10 +67,6 @@ def utc_timestamp(value, where: str = "utc", error: type[Exception] = JaxlcError
             _PARSED.clear()
         _PARSED[value] = parse_utc([value], where, error)[0]
     return _PARSED[value]
-
-
-#: Times already parsed by :func:`utc_timestamp` (immutable Timestamps), by their text.
-_PARSED: dict[str, pd.Timestamp] = {}
 
 
 def format_utc(times) -> list[str]:
