@@ -105,13 +105,13 @@ def batches(n_blocks: int, size: int) -> list[tuple[int, int]]:
 
 
 def stacked_objects(cls, objects) -> tuple:
-    """(models, attitudes): every curve's padded model and attitude stacked (host arrays),
-    the rows a kernel batch takes."""
+    """(models, attitudes, shadow): every curve's padded model and attitude stacked (host
+    arrays), the rows a kernel batch takes, and the class's one shadow table (or None)."""
     models = _stack(pad_models([o.model for o in objects], class_flags(cls)))
-    return models, _stack([o.attitude for o in objects])
+    return models, _stack([o.attitude for o in objects]), objects[0].shadow
 
 
-def _evaluate(config, objects, stacked, inputs, relative: bool) -> list[np.ndarray]:
+def _evaluate(config, stacked, inputs, relative: bool) -> list[np.ndarray]:
     """Each curve's inputs cut into blocks (``config.samples`` instants; ``relative``:
     :func:`probe_block`), all blocks evaluated in :func:`batches`: per curve, the
     (samples,) sums of its output rows (``relative``: the (M,) values of its M instants).
@@ -119,7 +119,7 @@ def _evaluate(config, objects, stacked, inputs, relative: bool) -> list[np.ndarr
     A block holds instants ``k … k + L − 1`` of one curve (padding past the curve's end
     repeats its last instant at weight zero); its output rows are the curve's (0 … L − 1
     must hold them), or with ``relative`` the block's own instants (one per instant).
-    ``stacked`` is :func:`stacked_objects` of ``objects``.
+    ``stacked`` is :func:`stacked_objects` of the curves (None when there are none).
     """
     t_len = probe_block(config.samples) if relative else config.samples
     n_inst = np.array([len(i.weight) for i in inputs], np.int64)
@@ -129,10 +129,9 @@ def _evaluate(config, objects, stacked, inputs, relative: bool) -> list[np.ndarr
         return out
     first = np.concatenate([[0], np.cumsum(-(-n_inst // t_len))[:-1]])
     offset = (np.arange(len(curve)) - first[curve]) * t_len  # block → its first instant
-    shadow = objects[0].shadow
-    kernel = batch_kernel(shadow is not None)
     # every curve's model, attitude and instants gathered once; a batch takes its rows
-    models, attitudes = stacked
+    models, attitudes, shadow = stacked
+    kernel = batch_kernel(shadow is not None)
     flat = _concat([(i.times, i.sun_dir, i.obs_dir, i.weight, i.row) for i in inputs])
     start = np.concatenate([[0], np.cumsum(n_inst)[:-1]])
     step = np.arange(t_len)
@@ -195,7 +194,7 @@ def render_class(config, cls, prepared: list[Prepared], instants: list | None = 
     def probes(requests):
         objs = [p.object for p, _ in requests]
         ins = [probe_inputs(p, probe, pad=False) for p, probe in requests]
-        got = _evaluate(config, objs, stacked(objs), ins, relative=True)
+        got = _evaluate(config, stacked(objs), ins, relative=True)
         return [g[: len(probe.t_s)] for g, (_, probe) in zip(got, requests, strict=True)]
 
     prepared = adapt(prepared, probes, instants=False)  # only the refined means are kept
@@ -207,7 +206,7 @@ def render_class(config, cls, prepared: list[Prepared], instants: list | None = 
         ]
     fixed = [j for j, p in enumerate(prepared) if p.refinement is None]
     objs = [prepared[j].object for j in fixed]
-    sums = _evaluate(config, objs, stacked(objs), [prepared[j].inputs for j in fixed], False)
+    sums = _evaluate(config, stacked(objs), [prepared[j].inputs for j in fixed], False)
     out = np.full((len(prepared), config.samples), np.nan)
     for j, s in zip(fixed, sums, strict=True):
         rows = prepared[j].exposures.rows

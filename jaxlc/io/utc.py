@@ -7,6 +7,7 @@ command line, always as ISO 8601 (any offset; none means UTC).
 
 from __future__ import annotations
 
+import functools
 import re
 
 import pandas as pd
@@ -52,8 +53,6 @@ def parse_utc(values, where: str = "utc", error: type[Exception] = JaxlcError) -
 
 #: A written-out date: four-digit year, month and day (then anything pandas' ISO 8601 parser takes).
 _DATE = re.compile(r"\s*\d{4}-?\d{2}-?\d{2}")
-#: Times already parsed by :func:`utc_timestamp` (immutable Timestamps), by their text.
-_PARSED: dict[str, pd.Timestamp] = {}
 
 
 def utc_timestamp(value, where: str = "utc", error: type[Exception] = JaxlcError) -> pd.Timestamp:
@@ -62,11 +61,14 @@ def utc_timestamp(value, where: str = "utc", error: type[Exception] = JaxlcError
         return value.tz_localize("UTC") if value.tzinfo is None else value.tz_convert("UTC")
     if not isinstance(value, str) or not value.strip():
         raise error(f"{where} = {value!r} is not an ISO 8601 UTC time like {EXAMPLE}")
-    if value not in _PARSED:  # a dataset parses the same start once per curve (~1 ms each)
-        if len(_PARSED) >= 1024:
-            _PARSED.clear()
-        _PARSED[value] = parse_utc([value], where, error)[0]
-    return _PARSED[value]
+    return _parsed_once(value, where, error)
+
+
+@functools.lru_cache(maxsize=1024)
+def _parsed_once(value: str, where: str, error: type[Exception]) -> pd.Timestamp:
+    """:func:`parse_utc` of one text, remembered (Timestamps are immutable; errors are
+    not cached): a dataset parses the same start once per curve, ~1 ms each."""
+    return parse_utc([value], where, error)[0]
 
 
 def format_utc(times) -> list[str]:
