@@ -7,7 +7,9 @@
   machine, ``experiments/bench_render.py``). Only ever applied on the CPU.
 * :func:`jit` and :func:`filter_jit` — ``jax.jit`` / ``equinox.filter_jit``
   with those options (fixed on the first call, so importing jaxlc compiles
-  nothing).
+  nothing). :func:`jit` (the forward model: :func:`jaxlc.render`, dataset
+  generation) also asks for 512-bit vectors wherever the traced computation
+  holds no arctangent (:func:`wide_options`, :func:`wide_safe`).
 * :func:`enable_persistent_cache` — JAX's compilation cache under
   :func:`jaxlc.io.cache.cache_dir` ``("xla")``: a spin fit or a dataset worker
   loads its compiled solvers instead of compiling them again in every process.
@@ -26,6 +28,15 @@ from jaxlc.io.cache import cache_dir
 #: on an AVX-512 machine, but this XLA then miscompiles ``jnp.arctan`` (zeros and
 #: shuffled values for 64 elements; wrong tumble Jacobians, LM searches that fail).
 CPU_COMPILER_OPTIONS = {"xla_cpu_experimental_ynn_fusion_type": ""}
+#: Added by :func:`jit` where it is safe (:func:`wide_safe`): the facet loop with
+#: 512-bit vectors — S4 with shadows 1.5× faster in the dataset path on the AVX-512
+#: reference machine (kernel 58 → 38 ms a curve, ``experiments/profile_shard.py``).
+WIDE_VECTOR_OPTIONS = {"xla_cpu_prefer_vector_width": 512}
+#: Primitives that this XLA miscompiles with 512-bit vectors (``atan``, above) or
+#: that lower through it; a computation that holds one keeps the plain options.
+WIDE_UNSAFE_PRIMITIVES = frozenset({"atan", "atan2"})
+#: ``JAXLC_XLA_WIDE=off`` keeps every kernel at the plain options.
+XLA_WIDE_ENV = "JAXLC_XLA_WIDE"
 #: ``JAXLC_XLA_CACHE=off`` turns the persistent compilation cache off.
 XLA_CACHE_ENV = "JAXLC_XLA_CACHE"
 
@@ -46,6 +57,37 @@ def compiler_options() -> dict | None:
     except Exception:
         return None
     return dict(CPU_COMPILER_OPTIONS)
+
+
+def wide_options() -> dict | None:
+    """:func:`compiler_options` with 512-bit vectors (:data:`WIDE_VECTOR_OPTIONS`), or None
+    off the CPU or when ``$JAXLC_XLA_WIDE`` is ``off``."""
+    base = compiler_options()
+    if base is None or os.environ.get(XLA_WIDE_ENV, "").lower() == "off":
+        return None
+    return {**base, **WIDE_VECTOR_OPTIONS}
+
+
+def primitive_names(jaxpr) -> set[str]:
+    """Names of every primitive in a (closed) jaxpr, its sub-jaxprs included (the
+    branches of a ``cond``, the bodies of ``scan`` and ``while``, inner ``jit`` calls)."""
+    names: set[str] = set()
+    stack = [jaxpr]
+    while stack:
+        j = stack.pop()
+        j = getattr(j, "jaxpr", j)  # a ClosedJaxpr's jaxpr
+        for eqn in getattr(j, "eqns", ()):
+            names.add(eqn.primitive.name)
+            for value in eqn.params.values():
+                items = value if isinstance(value, (tuple, list)) else (value,)
+                stack.extend(v for v in items if hasattr(getattr(v, "jaxpr", v), "eqns"))
+    return names
+
+
+def wide_safe(jaxpr) -> bool:
+    """Whether a computation may be compiled with 512-bit vectors: it holds none of
+    :data:`WIDE_UNSAFE_PRIMITIVES`."""
+    return not (primitive_names(jaxpr) & WIDE_UNSAFE_PRIMITIVES)
 
 
 def _lazy(make):
@@ -76,7 +118,26 @@ def jit(fn=None, **kwargs):
         return functools.partial(jit, **kwargs)
     import jax
 
-    return _lazy(lambda f: jax.jit(f, compiler_options=compiler_options(), **kwargs))(fn)
+    compiled: dict = {}  # "plain", "wide" (None: not used) and a choice per argument structure
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kw):
+        if not compiled:
+            wide = wide_options()
+            compiled["plain"] = jax.jit(fn, compiler_options=compiler_options(), **kwargs)
+            compiled["wide"] = jax.jit(fn, compiler_options=wide, **kwargs) if wide else None
+        if compiled["wide"] is None:
+            return compiled["plain"](*args, **kw)
+        # which primitives are traced depends on the arguments' types and static fields
+        # (an attitude that solves Kepler-like equations, a shadow table or none): their
+        # tree structure, checked once each by tracing (no compilation)
+        key = jax.tree_util.tree_structure((args, kw))
+        if key not in compiled:
+            safe = wide_safe(compiled["plain"].trace(*args, **kw).jaxpr)
+            compiled[key] = compiled["wide"] if safe else compiled["plain"]
+        return compiled[key](*args, **kw)
+
+    return wrapper
 
 
 def filter_jit(fn):
