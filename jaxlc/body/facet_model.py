@@ -179,6 +179,11 @@ def pad_facets(model: FacetModel, n_facets: int, flags: dict | None = None) -> F
     return FacetModel(**arrays, **flags)
 
 
+def facet_slice(model: FacetModel, start: int, stop: int) -> FacetModel:
+    """Facets ``start … stop − 1`` of one model (arrays (F,) or (F, 3); static bounds)."""
+    return jax.tree_util.tree_map(lambda x: x[start:stop], model)
+
+
 def pad_models(models: list[FacetModel], flags: dict | None = None) -> list[FacetModel]:
     """Models padded with inert facets to one facet count and one set of flags
     (the union of theirs, or ``flags``), ready to be stacked."""
