@@ -11,7 +11,9 @@ B. bulk: a batch of objects with random spin states rendered by ``jax.vmap``
 C. the facet kernel itself on S2 (5,120 facets) and S4 (1,205 facets) with an
    Ashikhmin–Shirley material: a naive unfused JAX sum (whole facets × samples
    arrays, as a first implementation would write it) against the fused,
-   chunked kernel with XLA's default CPU pipeline and with jaxlc's options.
+   chunked kernel with XLA's default CPU pipeline, with jaxlc's options, and
+   with them and 512-bit vectors (what :func:`jaxlc.xla.jit` compiles where safe;
+   tables A, B and D use that jit too).
 
 Every time is the median of repeated calls after a warm-up (compilation not
 included), with the interquartile range as its error. Writes
@@ -47,7 +49,7 @@ from jaxlc.body.facet_model import facet_intensity, facet_model  # noqa: E402
 from jaxlc.io.tables import write_table  # noqa: E402
 from jaxlc.rendering import photometry  # noqa: E402
 from jaxlc.rendering.kernel import exposure_intensity, stack_objects, time_chunk  # noqa: E402
-from jaxlc.xla import compiler_options  # noqa: E402
+from jaxlc.xla import compiler_options, jit, wide_options  # noqa: E402
 
 #: The instantaneous, unshadowed facet model (what tables A-C time).
 PLAIN = jaxlc.RenderOptions(shadows="off", blur="off")
@@ -95,7 +97,8 @@ def pass_geometry(n_samples: int):
 
 
 def _kernel():
-    return jax.jit(exposure_intensity, compiler_options=compiler_options())
+    """The kernel as jaxlc.render compiles it (512-bit vectors where safe, jaxlc.xla)."""
+    return jit(exposure_intensity)
 
 
 def single_curves(table, repeats_s):
@@ -156,7 +159,7 @@ def random_spins(name, table, n, rng):
 def bulk(table, batch, repeats_s):
     rows = []
     rng = np.random.default_rng(0)
-    f = jax.jit(jax.vmap(exposure_intensity), compiler_options=compiler_options())
+    f = jit(jax.vmap(exposure_intensity))
     for sid in ("S3", "S4", "S5", "S6"):
         prepared = random_spins(SCENES[sid], table, batch, rng)
         stacked = stack_objects([p.object for p in prepared])
@@ -233,14 +236,16 @@ def kernel_variants(n, repeats_s):
         sp = jnp.pad(s, ((0, pad), (0, 0)))
         vp = jnp.pad(v, ((0, pad), (0, 0)))
         fused_default = jax.jit(functools.partial(_chunked_kernel, chunk=chunk))
-        fused_jaxlc = jax.jit(
-            functools.partial(_chunked_kernel, chunk=chunk), compiler_options=compiler_options()
-        )
+        chunked = functools.partial(_chunked_kernel, chunk=chunk)
+        fused_jaxlc = jax.jit(chunked, compiler_options=compiler_options())
         variants = {
             "naive unfused": functools.partial(naive, *naive_args),
             "fused, XLA defaults": functools.partial(fused_default, model, sp, vp),
             "fused, jaxlc options": functools.partial(fused_jaxlc, model, sp, vp),
         }
+        if wide_options() is not None:  # the CPU: what jaxlc.xla.jit uses where safe
+            fused_wide = jax.jit(chunked, compiler_options=wide_options())
+            variants["fused, jaxlc options, 512-bit"] = functools.partial(fused_wide, model, sp, vp)
         ref = np.asarray(naive(*naive_args))
         fused = np.asarray(variants["fused, jaxlc options"]())[:n]
         agreement = float(np.max(np.abs(fused - ref)) / np.max(ref))
