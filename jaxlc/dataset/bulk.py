@@ -85,8 +85,29 @@ def _stack(trees):
     return jax.tree_util.tree_map(lambda *xs: np.stack([np.asarray(x) for x in xs]), *trees)
 
 
-def _concat(trees):
-    return jax.tree_util.tree_map(lambda *xs: np.concatenate([np.asarray(x) for x in xs]), *trees)
+def _blocks(inputs, t_len: int, n_inst: np.ndarray):
+    """Every curve's (times, sun_dir, obs_dir, weight, row) padded to whole blocks of
+    ``t_len`` instants (its last instant repeated, at weight zero) and all blocks stacked:
+    leaves (n_blocks, t_len, …), so that a batch of consecutive blocks is a slice."""
+    pad = -n_inst % t_len
+
+    def padded(x, extra, zero=False):
+        if not extra:
+            return x
+        tail = np.zeros_like(x[-1:]) if zero else x[-1:]
+        return np.concatenate([x, np.repeat(tail, extra, axis=0)])
+
+    def leaf(*xs):
+        x = np.concatenate([padded(np.asarray(a), e) for a, e in zip(xs, pad, strict=True)])
+        return x.reshape(-1, t_len, *x.shape[1:])
+
+    times, sun, obs, row = jax.tree_util.tree_map(
+        leaf, *[(i.times, i.sun_dir, i.obs_dir, i.row) for i in inputs]
+    )
+    weight = np.concatenate(
+        [padded(np.asarray(i.weight), e, zero=True) for i, e in zip(inputs, pad, strict=True)]
+    )
+    return times, sun, obs, weight.reshape(-1, t_len), row
 
 
 def probe_block(samples: int) -> int:
@@ -111,6 +132,15 @@ def stacked_objects(cls, objects) -> tuple:
     return models, _stack([o.attitude for o in objects]), objects[0].shadow
 
 
+def _batch_blocks(x, start: int, real: int, size: int):
+    """Blocks ``start … start + real − 1`` of ``x``; a short batch repeats its first block up
+    to ``size`` (a few compiled shapes per class)."""
+    part = x[start : start + real]
+    if size == real:
+        return part
+    return np.concatenate([part, np.repeat(part[:1], size - real, axis=0)])
+
+
 def _evaluate(config, stacked, inputs, relative: bool) -> list[np.ndarray]:
     """Each curve's inputs cut into blocks (``config.samples`` instants; ``relative``:
     :func:`probe_block`), all blocks evaluated in :func:`batches`: per curve, the
@@ -128,40 +158,37 @@ def _evaluate(config, stacked, inputs, relative: bool) -> list[np.ndarray]:
     if not len(curve):
         return out
     first = np.concatenate([[0], np.cumsum(-(-n_inst // t_len))[:-1]])
-    offset = (np.arange(len(curve)) - first[curve]) * t_len  # block → its first instant
-    # every curve's model, attitude and instants gathered once; a batch takes its rows
+    # every curve's model and attitude stacked once, its instants cut into blocks once
     models, attitudes, shadow = stacked
     kernel = batch_kernel(shadow is not None)
-    flat = _concat([(i.times, i.sun_dir, i.obs_dir, i.weight, i.row) for i in inputs])
-    start = np.concatenate([[0], np.cumsum(n_inst)[:-1]])
-    step = np.arange(t_len)
+    blocks = _blocks(inputs, t_len, n_inst)
+    step = np.broadcast_to(np.arange(t_len, dtype=np.int32), (config.batch_size, t_len))
+    got_all = np.empty((len(curve), t_len))
     for b0, size in batches(len(curve), config.batch_size):
         real = min(size, len(curve) - b0)
-        pad = np.full(size - real, b0)  # a few shapes per class: repeat the first block
-        blk = np.concatenate([np.arange(b0, b0 + real), pad])
-        j, k = curve[blk], offset[blk]
-        pos = k[:, None] + step[None, :]  # (size, L) instants within their curve
-        last = n_inst[j][:, None] - 1
-        idx = start[j][:, None] + np.minimum(pos, last)
-        times, sun, obs, weight, row = jax.tree_util.tree_map(lambda x: x[idx], flat)  # noqa: B023
-        stacked = KernelInputs(
+        j = np.concatenate([curve[b0 : b0 + real], np.full(size - real, curve[b0])])
+
+        take = functools.partial(_batch_blocks, start=b0, real=real, size=size)
+        times, sun, obs, weight, row = jax.tree_util.tree_map(take, blocks)
+        batch = KernelInputs(
             times=times,
             sun_dir=sun,
             obs_dir=obs,
-            weight=np.where(pos <= last, weight, 0.0).astype(weight.dtype),
-            row=np.broadcast_to(step.astype(np.int32), pos.shape) if relative else row,
+            weight=weight,
+            row=step[:size] if relative else row,
             n_rows=t_len,
             subsamples=None,
         )
         pick = functools.partial(jax.tree_util.tree_map, lambda x: x[j])  # noqa: B023
-        got = np.asarray(kernel(pick(models), pick(attitudes), shadow, stacked), np.float64)
-        for r in range(real):  # a curve's blocks in order: fixed sums
-            c = j[r]
-            if relative:
-                n = min(t_len, n_inst[c] - k[r])
-                out[c][k[r] : k[r] + n] = got[r, :n]
-            else:
-                out[c] += got[r]
+        got = kernel(pick(models), pick(attitudes), shadow, batch)
+        got_all[b0 : b0 + real] = np.asarray(got, np.float64)[:real]
+    for c in range(len(inputs)):  # a curve's blocks in order: fixed sums
+        mine = got_all[first[c] : first[c] + -(-n_inst[c] // t_len)]
+        if relative:
+            out[c][:] = mine.reshape(-1)[: n_inst[c]]
+        else:
+            for block in mine:
+                out[c] += block
     return out
 
 
