@@ -24,13 +24,14 @@ from pathlib import Path
 from jaxlc.io.cache import cache_dir
 
 #: XLA options of the facet kernels on the CPU backend (see the module docstring).
-#: Not ``xla_cpu_prefer_vector_width = 512``: the facet loop ran ~1.25× faster with it
-#: on an AVX-512 machine, but this XLA then miscompiles ``jnp.arctan`` (zeros and
-#: shuffled values for 64 elements; wrong tumble Jacobians, LM searches that fail).
+#: 512-bit vectors are not among them: this XLA then miscompiles ``jnp.arctan`` (zeros
+#: and shuffled values for 64 float32 elements; wrong tumble Jacobians, LM searches that
+#: fail). :func:`jit` adds them only where the computation holds no arctangent.
 CPU_COMPILER_OPTIONS = {"xla_cpu_experimental_ynn_fusion_type": ""}
 #: Added by :func:`jit` where it is safe (:func:`wide_safe`): the facet loop with
-#: 512-bit vectors — S4 with shadows 1.5× faster in the dataset path on the AVX-512
-#: reference machine (kernel 58 → 38 ms a curve, ``experiments/profile_shard.py``).
+#: 512-bit vectors — the S4 kernel with shadows 1.6× faster in the dataset path on the
+#: AVX-512 reference machine (59 → 37 ms a curve), its output bit-identical
+#: (``JAXLC_XLA_WIDE=off python experiments/profile_shard.py`` against the default).
 WIDE_VECTOR_OPTIONS = {"xla_cpu_prefer_vector_width": 512}
 #: Primitives that this XLA miscompiles with 512-bit vectors (``atan``, above) or
 #: that lower through it; a computation that holds one keeps the plain options.
