@@ -207,6 +207,25 @@ def test_same_bytes_with_two_dask_workers(config_path, reference, tmp_path):
     assert ds.attrs["jaxlc_version"] == jaxlc.__version__
 
 
+@pytest.mark.skipif(
+    not hasattr(os, "sched_getaffinity") or not 2 <= len(os.sched_getaffinity(0)) <= 4,
+    reason="pins workers that fill 2-4 cores (Linux)",
+)
+def test_local_workers_that_fill_the_cores_get_one_core_each(monkeypatch):
+    pytest.importorskip("distributed")
+    from jaxlc.dataset import runner
+
+    n = len(os.sched_getaffinity(0))
+    with runner.dask_client(n, None, n) as client:
+        pinned = client.run(os.sched_getaffinity, 0)
+    assert sorted(len(c) for c in pinned.values()) == [1] * n
+    assert set().union(*pinned.values()) == set(os.sched_getaffinity(0))
+    monkeypatch.setenv(runner.PIN_WORKERS_ENV, "off")
+    with runner.dask_client(n, None, n) as client:
+        free = client.run(os.sched_getaffinity, 0)
+    assert all(c == os.sched_getaffinity(0) for c in free.values())
+
+
 # ---------------------------------------------------------------------------
 # Resuming
 
