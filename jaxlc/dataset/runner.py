@@ -325,14 +325,23 @@ def dask_client(workers, scheduler, n_todo: int):
             env=_worker_env(n),
         )
         client = Client(cluster)
-        if n >= len(_cores()) > 1 and os.environ.get(PIN_WORKERS_ENV, "").lower() != "off":
-            client.run(pin_worker, sorted(client.scheduler_info()["workers"]))
     try:
+        if cluster is not None and _pin_workers(workers=n):
+            # an optimisation only: a worker that cannot be pinned runs as before
+            with contextlib.suppress(Exception):
+                client.run(pin_worker, sorted(client.scheduler_info()["workers"]))
         yield client
     finally:
         client.close()
         if cluster is not None:
             cluster.close()
+
+
+def _pin_workers(workers: int) -> bool:
+    """Whether local workers get a core each: they fill the cores (more than one), and
+    ``$JAXLC_PIN_WORKERS`` is not ``off``."""
+    off = os.environ.get(PIN_WORKERS_ENV, "").lower() == "off"
+    return not off and workers >= len(_cores()) > 1
 
 
 def _cores() -> list[int]:
