@@ -85,29 +85,23 @@ def _stack(trees):
     return jax.tree_util.tree_map(lambda *xs: np.stack([np.asarray(x) for x in xs]), *trees)
 
 
-def _blocks(inputs, t_len: int, n_inst: np.ndarray):
-    """Every curve's (times, sun_dir, obs_dir, weight, row) padded to whole blocks of
-    ``t_len`` instants (its last instant repeated, at weight zero) and all blocks stacked:
+def _blocks(trees, pad: np.ndarray, t_len: int, fill=None):
+    """Each curve's leaves (its M_c instants first) padded by ``pad[c]`` copies of its
+    last instant (or of ``fill``) and all curves' instants stacked in blocks of ``t_len``:
     leaves (n_blocks, t_len, …), so that a batch of consecutive blocks is a slice."""
-    pad = -n_inst % t_len
 
-    def padded(x, extra, zero=False):
+    def padded(x, extra):
+        x = np.asarray(x)
         if not extra:
             return x
-        tail = np.zeros_like(x[-1:]) if zero else x[-1:]
+        tail = x[-1:] if fill is None else np.full_like(x[-1:], fill)
         return np.concatenate([x, np.repeat(tail, extra, axis=0)])
 
     def leaf(*xs):
-        x = np.concatenate([padded(np.asarray(a), e) for a, e in zip(xs, pad, strict=True)])
+        x = np.concatenate([padded(a, e) for a, e in zip(xs, pad, strict=True)])
         return x.reshape(-1, t_len, *x.shape[1:])
 
-    times, sun, obs, row = jax.tree_util.tree_map(
-        leaf, *[(i.times, i.sun_dir, i.obs_dir, i.row) for i in inputs]
-    )
-    weight = np.concatenate(
-        [padded(np.asarray(i.weight), e, zero=True) for i, e in zip(inputs, pad, strict=True)]
-    )
-    return times, sun, obs, weight.reshape(-1, t_len), row
+    return jax.tree_util.tree_map(leaf, *trees)
 
 
 def probe_block(samples: int) -> int:
@@ -161,13 +155,19 @@ def _evaluate(config, stacked, inputs, relative: bool) -> list[np.ndarray]:
     # every curve's model and attitude stacked once, its instants cut into blocks once
     models, attitudes, shadow = stacked
     kernel = batch_kernel(shadow is not None)
-    blocks = _blocks(inputs, t_len, n_inst)
-    step = np.broadcast_to(np.arange(t_len, dtype=np.int32), (config.batch_size, t_len))
+    # padding past a curve's end repeats its last instant, at weight zero
+    pad = -n_inst % t_len
+    times, sun, obs = _blocks([(i.times, i.sun_dir, i.obs_dir) for i in inputs], pad, t_len)
+    weight = _blocks([i.weight for i in inputs], pad, t_len, fill=0)
+    if relative:  # each instant its own output row
+        row = np.broadcast_to(np.arange(t_len, dtype=np.int32), (len(curve), t_len))
+    else:
+        row = _blocks([i.row for i in inputs], pad, t_len)
+    blocks = (times, sun, obs, weight, row)
     got_all = np.empty((len(curve), t_len))
     for b0, size in batches(len(curve), config.batch_size):
         real = min(size, len(curve) - b0)
         j = np.concatenate([curve[b0 : b0 + real], np.full(size - real, curve[b0])])
-
         take = functools.partial(_batch_blocks, start=b0, real=real, size=size)
         times, sun, obs, weight, row = jax.tree_util.tree_map(take, blocks)
         batch = KernelInputs(
@@ -175,7 +175,7 @@ def _evaluate(config, stacked, inputs, relative: bool) -> list[np.ndarray]:
             sun_dir=sun,
             obs_dir=obs,
             weight=weight,
-            row=step[:size] if relative else row,
+            row=row,
             n_rows=t_len,
             subsamples=None,
         )
