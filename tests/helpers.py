@@ -141,3 +141,17 @@ def pass_geometry(n=6, **kw):
     )
     args.update(kw)
     return jaxlc.synthetic_geometry(**args)
+
+
+def roof_over_floor():
+    """A two-sided 1 × 1 m roof 1 m above a two-sided 2 × 2 m floor (parts floor, roof)."""
+    from jaxlc.body.mesh import TriangleMesh
+
+    floor = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], float)
+    roof = np.array([[-0.5, -0.5, 1], [0.5, -0.5, 1], [0.5, 0.5, 1], [-0.5, 0.5, 1]], float)
+    v = np.concatenate([floor, roof])
+    up = [[0, 1, 2], [0, 2, 3]]
+    down = [[0, 2, 1], [0, 3, 2]]
+    faces = np.array(up + down + [[a + 4, b + 4, c + 4] for a, b, c in up + down])
+    part = np.array([0, 0, 0, 0, 1, 1, 1, 1], np.int32)
+    return TriangleMesh(v, faces, part, ("floor", "roof"), "roof-over-floor")

@@ -11,12 +11,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from helpers import DATA, MESHES, REPO, SCENES, random_unit_vectors, unit
+from helpers import DATA, MESHES, REPO, SCENES, random_unit_vectors, roof_over_floor, unit
 
 import jaxlc
 from jaxlc.body import raycast
 from jaxlc.body import shadow as shadow_module
-from jaxlc.body.mesh import TriangleMesh, facets_from_mesh
+from jaxlc.body.mesh import facets_from_mesh
 from jaxlc.body.occlusion import Occluders, hits, plane_basis
 from jaxlc.body.octahedral import (
     grid_corners,
@@ -115,17 +115,6 @@ def test_reference_data_is_reproduced_by_the_twin():
 # The twin against hand geometry: a 1 × 1 m roof 1 m above a 2 × 2 m floor
 
 
-def _roof_over_floor() -> TriangleMesh:
-    floor = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], float)
-    roof = np.array([[-0.5, -0.5, 1], [0.5, -0.5, 1], [0.5, 0.5, 1], [-0.5, 0.5, 1]], float)
-    v = np.concatenate([floor, roof])
-    up = [[0, 1, 2], [0, 2, 3]]
-    down = [[0, 2, 1], [0, 3, 2]]
-    faces = np.array(up + down + [[a + 4, b + 4, c + 4] for a, b, c in up + down])
-    part = np.array([0, 0, 0, 0, 1, 1, 1, 1], np.int32)
-    return TriangleMesh(v, faces, part, ("floor", "roof"), "roof-over-floor")
-
-
 @pytest.mark.parametrize(
     ("dx", "dy"), [(0.0, 0.0), (0.3, 0.0), (0.25, -0.4), (0.8, 0.6), (1.5, 0.0)]
 )
@@ -133,7 +122,7 @@ def test_exact_twin_roof_shadow(dx, dy):
     """Floor seen from the zenith, Sun tilted: the roof hides the 1 × 1 square under it
     and shadows that square shifted by (dx, dy), cut to the floor: lit and seen =
     4 − (1 + shadow on floor − overlap of the two squares)."""
-    mesh = _roof_over_floor()
+    mesh = roof_over_floor()
     facets = facets_from_mesh(mesh)
     floor_up = int(np.flatnonzero((facets.part == 0) & (facets.normals[:, 2] > 0))[0])
     s, v = unit([dx, dy, 1.0]), np.array([0.0, 0.0, 1.0])

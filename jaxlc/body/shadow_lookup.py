@@ -133,7 +133,11 @@ def lit_seen_fraction(
 ) -> Float[Array, "T F"]:
     """Fraction of each shadowable facet both lit and seen, (T, F_s) in [0, 1]: the sum
     of its columns (:func:`lit_seen_columns`)."""
-    columns = lit_seen_columns(table, sun_b, obs_b)
+    return column_fractions(table, lit_seen_columns(table, sun_b, obs_b))
+
+
+def column_fractions(table: ShadowTable, columns: Float[Array, "T V"]) -> Float[Array, "T F"]:
+    """(T, F_s) each facet's lit-and-seen fraction from its columns (:func:`run_fraction`)."""
     parts = [run_fraction(columns, run) for run in facet_runs(table)]
     return parts[0] if len(parts) == 1 else jnp.concatenate(parts, axis=1)
 

@@ -55,7 +55,8 @@ def class_flags(cls) -> dict:
 
 
 def _one(model, attitude, shadow, inputs):
-    return exposure_intensity(SpaceObject(model, attitude, shadow), inputs)
+    table, exact = shadow
+    return exposure_intensity(SpaceObject(model, attitude, table, exact), inputs)
 
 
 @functools.cache
@@ -121,9 +122,11 @@ def batches(n_blocks: int, size: int) -> list[tuple[int, int]]:
 
 def stacked_objects(cls, objects) -> tuple:
     """(models, attitudes, shadow): every curve's padded model and attitude stacked (host
-    arrays), the rows a kernel batch takes, and the class's one shadow table (or None)."""
+    arrays), the rows a kernel batch takes, and the class's one shadow table and exact
+    kit ((None, None) without shadows)."""
     models = _stack(pad_models([o.model for o in objects], class_flags(cls)))
-    return models, _stack([o.attitude for o in objects]), objects[0].shadow
+    shadow = (objects[0].shadow, objects[0].exact)
+    return models, _stack([o.attitude for o in objects]), shadow
 
 
 def _batch_blocks(x, start: int, real: int, size: int):
@@ -154,7 +157,7 @@ def _evaluate(config, stacked, inputs, relative: bool) -> list[np.ndarray]:
     first = np.concatenate([[0], np.cumsum(-(-n_inst // t_len))[:-1]])
     # every curve's model and attitude stacked once, its instants cut into blocks once
     models, attitudes, shadow = stacked
-    kernel = batch_kernel(shadow is not None)
+    kernel = batch_kernel(shadow[0] is not None)
     # padding past a curve's end repeats its last instant, at weight zero
     pad = -n_inst % t_len
     times, sun, obs = _blocks([(i.times, i.sun_dir, i.obs_dir) for i in inputs], pad, t_len)

@@ -21,8 +21,15 @@ from jaxtyping import Array, Float, Int, PyTree
 
 from jaxlc.body.attitude import AbstractAttitude
 from jaxlc.body.facet_model import FacetModel, facet_intensity, facet_slice, pad_models
-from jaxlc.body.shadow_lookup import ShadowTable, facet_runs, lit_seen_columns, run_fraction
+from jaxlc.body.shadow_lookup import (
+    ShadowTable,
+    column_fractions,
+    facet_runs,
+    lit_seen_columns,
+    run_fraction,
+)
 from jaxlc.errors import JaxlcError
+from jaxlc.rendering.exact_glints import ExactKit, glint_correction
 
 #: Target size of one (time chunk × facets) block, in elements (~1 MB of float32).
 CHUNK_ELEMENTS = 1 << 18
@@ -37,11 +44,14 @@ class SpaceObject(eqx.Module):
         attitude: body → inertial rotation over time.
         shadow: visibility table of the facets that can be shadowed
             (:mod:`jaxlc.body.shadow_lookup`), or None (no shadow work).
+        exact: the facets whose brightest terms get exact shadows
+            (:mod:`jaxlc.rendering.exact_glints`), or None (the table alone).
     """
 
     model: FacetModel
     attitude: AbstractAttitude
     shadow: ShadowTable | None = None
+    exact: ExactKit | None = None
 
     @property
     def n_facets(self) -> int:
@@ -94,7 +104,17 @@ def body_intensity(
     """
     if obj.shadow is None:
         return facet_intensity(obj.model, sun_b, obs_b)
-    return _weighted_intensity(obj, sun_b, obs_b, lit_seen_columns(obj.shadow, sun_b, obs_b))
+    return _shadowed_intensity(obj, sun_b, obs_b, lit_seen_columns(obj.shadow, sun_b, obs_b))
+
+
+def _shadowed_intensity(obj: SpaceObject, sun_b, obs_b, columns):
+    """The weighted facet sum, with the brightest terms' exact shadows if the object has
+    an :class:`~jaxlc.rendering.exact_glints.ExactKit`."""
+    out = _weighted_intensity(obj, sun_b, obs_b, columns)
+    if obj.exact is None:
+        return out
+    table = column_fractions(obj.shadow, columns)
+    return out + glint_correction(obj.model, obj.exact, sun_b, obs_b, table, out)
 
 
 #: A table with a run of at least this many facets gets one facet sum per run
@@ -184,7 +204,7 @@ def light_curve_intensity(
         return s_b, v_b, lit_seen_columns(obj.shadow, s_b, v_b)
 
     per_chunk = jax.lax.map(lit_seen, args)
-    out = jax.lax.map(lambda a: _weighted_intensity(obj, *a), per_chunk)
+    out = jax.lax.map(lambda a: _shadowed_intensity(obj, *a), per_chunk)
     return out.reshape(-1)[:n_t]
 
 
@@ -243,5 +263,7 @@ def stack_objects(objects: list[SpaceObject]) -> SpaceObject:
                 "stack_objects: shadowed objects must share one mesh (one table layout)"
             )
     models = pad_models([o.model for o in objects])
-    padded = [SpaceObject(m, o.attitude, o.shadow) for m, o in zip(models, objects, strict=True)]
+    padded = [
+        SpaceObject(m, o.attitude, o.shadow, o.exact) for m, o in zip(models, objects, strict=True)
+    ]
     return jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *padded)

@@ -45,6 +45,7 @@ class RenderPlan:
     rows: int
     rows_rendered: int
     attitude: str = ""
+    exact_glints: bool = False
 
     @property
     def subsamples(self) -> int:
@@ -99,6 +100,8 @@ def make_plan(scene, geo, options: RenderOptions | None = None, facets=None) -> 
         )
         mesh, own = scene.body  # a large mesh's table is coarser: say so
         why += reduced_resolution(mesh, own if own_facets is None else own_facets, s)
+        if options.shadow_exact == "glints":
+            why += "; glints of partly shadowed facets clipped exactly"
         shadow = s
     idx = np.flatnonzero(geo.visible)
     blur, blur_reason = choose_blur(
@@ -118,6 +121,7 @@ def make_plan(scene, geo, options: RenderOptions | None = None, facets=None) -> 
         rows=len(geo.visible),
         rows_rendered=len(idx),
         attitude=scene.attitude.describe(),
+        exact_glints=shadow is not None and options.shadow_exact == "glints",
     )
 
 

@@ -49,6 +49,7 @@ from jaxlc.rendering.adaptive import (
     max_level_for,
     refine,
 )
+from jaxlc.rendering.exact_glints import kit_for
 from jaxlc.rendering.exposures import Exposures, exposure_instants
 from jaxlc.rendering.kernel import KernelInputs, SpaceObject
 from jaxlc.rendering.observation import GeometryArrays, as_geometry
@@ -70,6 +71,7 @@ def space_object(
     shadow: ShadowSettings | None = None,
     progress=None,
     facets: Facets | None = None,
+    exact_glints: bool = False,
 ) -> SpaceObject:
     """The traced object of a scene, its attitude referred to ``origin_utc``.
 
@@ -83,6 +85,8 @@ def space_object(
         facets: facets in the mesh file's units to use instead of the mesh's
             own (e.g. a coarsened set whose ``triangle_facet`` maps the mesh's
             triangles onto them).
+        exact_glints: with shadows, clip the lit-and-seen fraction of bright shadowed
+            terms exactly (:mod:`jaxlc.rendering.exact_glints`).
 
     The mesh, its facets and its shadow table are derived once per mesh file
     and process (at the file's scale: the scene's ``scale`` multiplies the
@@ -107,6 +111,7 @@ def space_object(
         ),
         attitude=attitude,
         shadow=shadow_table(data, dtype),
+        exact=kit_for(data, mesh, facets, dtype) if exact_glints else None,
     )
 
 
@@ -284,7 +289,9 @@ def prepare(
         else (origin - geo.origin_utc).total_seconds()
     )
     with jax.enable_x64(precision == "float64"):
-        obj = space_object(scene, origin, precision, plan.shadow, progress, facets)
+        obj = space_object(
+            scene, origin, precision, plan.shadow, progress, facets, plan.exact_glints
+        )
     if subsamples is not None and plan.blur.adaptive:
         plan = dataclasses.replace(plan, blur=dataclasses.replace(plan.blur, adaptive=False))
     count = subsamples or plan.subsamples
