@@ -4,7 +4,8 @@ Over the committed random geometries of tests/data/shadow_reference_*.csv (exact
 polygon clipping: 2,000 each for S4, S6, S7, S8), for the geometries lit and seen at
 phase ≤ 160°: median, 95th and 99th percentile and max |Δm| of the facet model's
 I/E, and the largest |ΔI| over the median I, at a 32 × 32 and a 64 × 64 direction
-grid. Prints one line per setting:
+grid, and at 64 × 64 with ``shadow_exact = "glints"`` (:mod:`jaxlc.rendering.exact_glints`).
+Prints one line per setting:
 
     python experiments/shadow_tail.py [s4_falcon9 s6_boxwing s7_antenna_box s8_boom_panel]
 """
@@ -71,13 +72,16 @@ def error_summary(approx, exact, keep) -> dict:
     )
 
 
-def tail(name: str, settings: ShadowSettings) -> str:
+def tail(name: str, settings: ShadowSettings, exact_glints: bool = False) -> str:
     s, v, exact, _, keep = reference(name)
     t0 = time.perf_counter()
-    obj = space_object(jaxlc.load_scene(name), None, jnp.float32, shadow=settings)
+    obj = space_object(
+        jaxlc.load_scene(name), None, jnp.float32, shadow=settings, exact_glints=exact_glints
+    )
     e = error_summary(body_intensity(obj, s, v), exact, keep)
+    what = f"grid {settings.grid}" + (", exact glints" if exact_glints else "")
     return (
-        f"{name} grid {settings.grid}: {keep.sum()} geometries, median {e['err_median_mag']:.4f} "
+        f"{name} {what}: {keep.sum()} geometries, median {e['err_median_mag']:.4f} "
         f"p95 {e['err_p95_mag']:.4f} p99 {e['err_p99_mag']:.4f} max {e['err_max_mag']:.3f} mag; "
         f"max |ΔI| {e['err_max_of_median_flux']:.3g} × median I ({time.perf_counter() - t0:.0f} s)"
     )
@@ -87,3 +91,4 @@ if __name__ == "__main__":
     for name in sys.argv[1:] or ["s4_falcon9", "s6_boxwing", "s7_antenna_box", "s8_boom_panel"]:
         for grid in (32, 64):
             print(tail(name, ShadowSettings(grid=grid)), flush=True)
+        print(tail(name, ShadowSettings(), exact_glints=True), flush=True)

@@ -35,10 +35,10 @@ class RenderOptions:
         shadows: ``"auto"`` (approximate self-shadowing where the mesh can
             shadow itself) or ``"off"``.
         shadow: resolution of the shadow approximation.
-        shadow_exact: ``"glints"``: where one shadowable facet carries a good share of an
-            instant's flux, its lit-and-seen fraction is clipped exactly instead of
-            looked up (:mod:`jaxlc.rendering.exact_glints`; ~0.5 ms per such instant
-            on a CPU); ``"off"``: the table alone.
+        shadow_exact: ``"glints"``: the brightest shadowable terms of each instant get
+            their lit-and-seen fraction clipped exactly instead of looked up
+            (:mod:`jaxlc.rendering.exact_glints`; ~3 ms per S6 instant on a CPU
+            core); ``"off"``: the table alone.
         blur: ``"auto"`` (sub-exposures per exposure as its own motion needs,
             :mod:`jaxlc.rendering.adaptive`) or ``"off"`` (one, at mid-exposure).
         blur_tolerance_mag: the error allowed per exposure by the adaptive quadrature.
