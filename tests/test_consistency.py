@@ -210,10 +210,11 @@ range_end_m = 1.5e6
 
 
 def test_exact_glints_are_one_forward_model_too(tmp_path):
-    """With ``shadow_exact = "glints"`` the dataset path and :func:`jaxlc.render` (its
-    scene from the store) agree within 10⁻⁴ mag: each instant decides its exact terms
-    on its own, so how the instants are cut into blocks does not matter. The option
-    changes the curve (the table alone differs), so the agreement is of the new path."""
+    """With ``shadow_exact = "glints"`` the dataset path, :func:`jaxlc.render` (its scene
+    from the store) and the spin fit's model at the truth agree within 10⁻⁴ mag: each
+    instant decides its exact terms on its own, so how the instants are cut into blocks
+    does not matter. The option changes the curve (the table alone differs), so the
+    agreement is of the new path."""
     path = tmp_path / "glints.toml"
     path.write_text(GLINTS)
     ds = dataset.generate(path, tmp_path / "glints.zarr", workers=0, progress=False)
@@ -230,4 +231,17 @@ def test_exact_glints_are_one_forward_model_too(tmp_path):
         table = dataclasses.replace(scene.render, shadow_exact="off")
         plain = jaxlc.render(scene, geo, options=table)["mag"].to_numpy()
         changed = max(changed, float(np.max(np.abs(plain[lit] - mag[lit]))))
+        # the spin fit's forward model at the truth (rows not dark: I/E ≥ 1e-6 of the
+        # brightest; a 1e-16 row is float32 noise in any path)
+        rendered = jaxlc.render(scene, geo)
+        data = fit_data(rendered, geo, default_exposure_s=scene.exposure_s)
+        truth = truth_theta(scene, data)
+        model = spin_model(
+            scene, data, scene.attitude.period_s, floor=False, theta=truth, least_levels=False
+        )
+        assert model.obj.exact is not None
+        intensity = np.asarray(model.intensity(to_device(model, truth)))
+        bright = intensity > 1e-6 * intensity.max()
+        fit_mag = data.const_mag - 2.5 * np.log10(intensity[bright])
+        assert np.max(np.abs(fit_mag - mag[data.rows][bright])) < 1e-4
     assert changed > 1e-3
