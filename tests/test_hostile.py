@@ -333,6 +333,7 @@ CASES = [
     ("render subsamples", [*R, "--subsamples", "lots"], OK, "--subsamples = 'lots'"),
     ("render shadows", [*R, "--shadows", "maybe"], OK, "shadows"),
     ("render shadow grid 0", [*R, "--shadow-grid", "0"], OK, "grid"),
+    ("render shadow exact", [*R, "--shadow-exact", "yes"], OK, "--shadow-exact: shadow_exact"),
     ("render output xlsx", ["render", "sc.toml", "geo.csv", "-o", "out.xlsx"], OK, ".xlsx"),
     (
         "render output is folder",

@@ -12,7 +12,7 @@ import typer
 from jaxlc.cli.app import app, console
 
 
-def render_options(scene, shadows, shadow_grid, subsamples):
+def render_options(scene, shadows, shadow_grid, subsamples, shadow_exact=None):
     """The scene's [render] options with the command line's overrides."""
     import dataclasses
 
@@ -23,6 +23,11 @@ def render_options(scene, shadows, shadow_grid, subsamples):
         opts = dataclasses.replace(opts, shadows=shadows)
     if shadow_grid is not None:
         opts = dataclasses.replace(opts, shadow=dataclasses.replace(opts.shadow, grid=shadow_grid))
+    if shadow_exact is not None:
+        try:
+            opts = dataclasses.replace(opts, shadow_exact=shadow_exact)
+        except JaxlcError as exc:
+            raise JaxlcError(f"--shadow-exact: {exc}") from None
     if subsamples is not None:
         if subsamples == "auto":
             opts = dataclasses.replace(opts, blur="auto", subsamples=None)
@@ -62,6 +67,10 @@ def render(
     subsamples: Annotated[
         str | None, typer.Option(help="Sub-exposures: auto, off or a number.")
     ] = None,
+    shadow_exact: Annotated[
+        str | None,
+        typer.Option(help="glints (clip bright shadowed terms exactly; slower) or off."),
+    ] = None,
 ):
     """Render SCENE over GEOMETRY into a light-curve table."""
     from rich.progress import Progress
@@ -77,7 +86,7 @@ def render(
     t0 = time.perf_counter()
     sc = jaxlc.load_scene(scene)
     table = jaxlc.read_geometry(geometry)
-    options = render_options(sc, shadows, shadow_grid, subsamples)
+    options = render_options(sc, shadows, shadow_grid, subsamples, shadow_exact)
     # The plan alone first, so that --explain shows before a shadow table is traced.
     plan = make_plan(sc, geometry_arrays(table, sc.exposure_s), options)
     if explain:
