@@ -105,6 +105,18 @@ def _occluders(verts, faces, tri_facet, f: int, n, c, u, w) -> dict | None:
             edges.setdefault((min(a, b), max(a, b)), []).append((j, 1 if a < b else -1))
     if any(len(v) > MAX_ADJACENT for v in edges.values()):
         return None
+    # an edge between two coplanar polygons on either side of it is inside U in every
+    # projection: it never counts (17 % of S6's edges; the traced half's cost is ∝ edges)
+    normal = [_newell(np.array([coords[k] for k in p])) for p in polygons]
+    edges = {
+        e: users
+        for e, users in edges.items()
+        if not (
+            len(users) == 2
+            and users[0][1] == -users[1][1]
+            and normal[users[0][0]] @ normal[users[1][0]] > 1 - 1e-9
+        )
+    }
     edge = np.array(list(edges), np.int64).reshape(-1, 2)
     adjacent = np.zeros((len(edge), MAX_ADJACENT), np.int64)
     winding = np.zeros((len(edge), MAX_ADJACENT))
@@ -199,6 +211,12 @@ def _split_t_junctions(polygons: list[list], coords) -> list[list]:
             new += [keys[j] for j in inner[np.argsort(t[inner])] if keys[j] not in (a, b)]
         out.append(new)
     return out
+
+
+def _newell(poly: np.ndarray) -> np.ndarray:
+    """Unit normal (3,) of a planar polygon (K, 3) in its winding (Newell's method)."""
+    n = np.cross(poly, np.roll(poly, -1, axis=0)).sum(axis=0)
+    return n / max(float(np.linalg.norm(n)), 1e-300)
 
 
 def _convex(quad: np.ndarray) -> bool:

@@ -4,14 +4,14 @@ The shadow table's lit fraction is ~1 % off near shadow edges, which matters onl
 where a facet's term is large against the curve: a glint of a partly shadowed
 panel is tens to hundreds of times the curve's median flux, so 1 % of it is
 10–150 % of the median (``experiments/shadow_curves.py``). Exact clipping
-(:mod:`jaxlc.body.shadow_clip`) costs ~0.3–0.7 ms per facet piece and instant on
+(:mod:`jaxlc.body.shadow_clip`) costs ~0.2–0.5 ms per facet piece and instant on
 the CPU, too much for every instant; here it replaces the table's fraction only for
 the brightest terms of an instant that are each a good share of the whole
 (:data:`EXACT_SHARE`): where the table's error can be a visible part of the
 curve. The rest keep the table. On S6, S7 and S8 (40 spinning curves each,
 50 samples, ``experiments/shadow_curves.py``) the curves whose every error is
-within 2 % of their median flux go from 13, 33 and 21 to all 40, at 140, 31 and
-37 ms per 50-sample curve on a CPU core (S6's panels carry most instants);
+within 2 % of their median flux go from 13, 33 and 21 to all 40, at 87, 22 and
+22 ms per 50-sample curve on a CPU core (S6's panels carry most instants);
 over 1,756 random geometries each (``experiments/shadow_tail.py``) the largest
 error is 1.0 %, 0.01 % and 0.08 % of the median I/E instead of 20×, 6 % and 81 %
 (max |Δm| 0.005, 0.000, 0.001 mag).

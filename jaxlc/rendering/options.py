@@ -37,7 +37,7 @@ class RenderOptions:
         shadow: resolution of the shadow approximation.
         shadow_exact: ``"glints"``: the brightest shadowable terms of each instant get
             their lit-and-seen fraction clipped exactly instead of looked up
-            (:mod:`jaxlc.rendering.exact_glints`; ~3 ms per S6 instant on a CPU
+            (:mod:`jaxlc.rendering.exact_glints`; ~2 ms per S6 instant on a CPU
             core); ``"off"``: the table alone.
         blur: ``"auto"`` (sub-exposures per exposure as its own motion needs,
             :mod:`jaxlc.rendering.adaptive`) or ``"off"`` (one, at mid-exposure).
