@@ -7,7 +7,9 @@ that make a convex quadrilateral merged into one polygon. Their points are kept
 relative to the facet's centroid in its frame (r·u, r·w, r·n), so that the
 projection along a direction d is two multiply-adds per point; their edges are
 listed once with the polygons beside them, which is how the traced half
-(:func:`jaxlc.body.shadow_clip.blocked_area`) tells U's boundary from its inside.
+(:func:`jaxlc.body.shadow_clip.blocked_area`) tells U's boundary from its inside
+(an edge between two coplanar polygons on either side is inside U in every
+projection and is left out).
 
 A facet is split into its convex pieces (the connected sets of its triangles; two
 coplanar wings are one facet of two rectangles); a facet with a piece that is not
