@@ -89,16 +89,12 @@ def shape_rows(name: str, n_curves: int, n_samples: int, workers: int) -> list[d
         done = pool.map(twin_intensities, [(scene_path, s[p], v[p]) for p in parts])
     exact = np.concatenate([d[0] for d in done]).reshape(n_curves, n_samples)
     twin_s = time.perf_counter() - t0
-    obj = space_object(
-        jaxlc.load_scene(scene_path), None, jnp.float32, shadow=jaxlc.RenderOptions().shadow
-    )
+    scene, settings = jaxlc.load_scene(scene_path), jaxlc.RenderOptions().shadow
+    obj = space_object(scene, None, jnp.float32, shadow=settings)
     f32 = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
     approx = np.asarray(body_intensity(obj, f32(s), f32(v)), np.float64).reshape(exact.shape)
     # the same with exact clipping of glints (RenderOptions(shadow_exact="glints"))
-    glints = space_object(
-        jaxlc.load_scene(scene_path), None, jnp.float32, shadow=jaxlc.RenderOptions().shadow,
-        exact_glints=True,
-    )  # fmt: skip
+    glints = space_object(scene, None, jnp.float32, shadow=settings, exact_glints=True)
     per_curve = jax.jit(body_intensity)
     fixed = np.asarray(per_curve(glints, f32(sun[0]), f32(obs[0])))  # compile
     t0 = time.perf_counter()

@@ -60,14 +60,16 @@ def clip_data(
     found, owner = [], []
     for f in np.asarray(facet_ids, np.int64):
         n, c, u, w = facets.normals[f], facets.centroids_m[f], us[f], ws[f]
+        h = (verts - c) @ n
+        cand = np.flatnonzero(
+            (tri_facet >= 0) & (tri_facet != f) & (h[faces] > FRONT_M).any(axis=1)
+        )
+        if len(cand) > 2 * max_polygons:  # too many even merged in pairs (S4: all facets)
+            continue
         outlines = _piece_outlines(verts, faces[tri_facet == f], c, u, w)
         if outlines is None:
             continue
-        h = (verts - c) @ n
-        in_front = (tri_facet >= 0) & (tri_facet != f) & (h[faces] > FRONT_M).any(axis=1)
-        if np.count_nonzero(in_front) > 2 * max_polygons:  # not even merged in pairs
-            continue
-        occ = _occluders(verts, faces, tri_facet, int(f), n, c, u, w)
+        occ = _occluders(verts, faces, tri_facet, cand, h, (n, c, u, w))
         if occ is None or len(occ["polygon"]) > max_polygons:
             continue
         for outline, area in outlines:
@@ -78,11 +80,16 @@ def clip_data(
     return _pad(found, dtype), np.asarray(owner, np.int64)
 
 
-def _occluders(verts, faces, tri_facet, f: int, n, c, u, w) -> dict | None:
-    """Facet f's occluding polygons, their points and edges (float64), or None if an
-    edge has more than :data:`MAX_ADJACENT` polygons."""
-    h = (verts - c) @ n
-    cand = np.flatnonzero((tri_facet >= 0) & (tri_facet != f) & (h[faces] > FRONT_M).any(axis=1))
+def _occluders(verts, faces, tri_facet, cand, h, frame) -> dict | None:
+    """A facet's occluding polygons, their points and edges (float64), or None if an
+    edge has more than :data:`MAX_ADJACENT` polygons.
+
+    Args:
+        cand: the triangles with a vertex in front of the facet's plane.
+        h: (V,) each vertex's height above the plane (m).
+        frame: the facet's normal, centroid and tangents (n, c, u, w).
+    """
+    n, c, u, w = frame
     polygons, coords = [], {}  # polygons: lists of point keys ("v", i) or ("e", i, j)
     for t in cand:
         poly = _front_part(faces[t], h, verts, coords)
@@ -95,7 +102,8 @@ def _occluders(verts, faces, tri_facet, f: int, n, c, u, w) -> dict | None:
     index = {k: i for i, k in enumerate(keys)}
     r = np.array([coords[k] for k in keys]).reshape(-1, 3) - c
     points = np.stack([r @ u, r @ w, r @ n], axis=-1)
-    points[np.abs(points[:, 2]) <= FRONT_M, 2] = 0.0  # on the plane: projects onto itself
+    on_plane = np.abs(points[:, 2]) <= FRONT_M
+    points[on_plane, 2] = 0.0  # on the plane: projects onto itself
     n_s = max(len(p) for p in polygons)
     polygon = np.array([[index[k] for k in p] + [index[p[-1]]] * (n_s - len(p)) for p in polygons])
     polygon = polygon.reshape(len(polygons), n_s).astype(np.int64)
@@ -126,11 +134,10 @@ def _occluders(verts, faces, tri_facet, f: int, n, c, u, w) -> dict | None:
     for e, users in enumerate(edges.values()):
         for k, (j, sign) in enumerate(users):
             adjacent[e, k], winding[e, k], own[e, j] = j, sign, True
-    on_plane = np.abs(points[:, 2]) <= FRONT_M
     return dict(
-        normal=n, tangent_u=u, tangent_w=w, points=points, polygon=polygon,
-        side_ok=polygon != np.roll(polygon, -1, axis=1), edge=edge, adjacent=adjacent,
-        winding=winding, own=own, edge_flat=on_plane[edge[:, 0]] & on_plane[edge[:, 1]],
+        normal=n, tangent_u=u, tangent_w=w, points=points, polygon=polygon, edge=edge,
+        adjacent=adjacent, winding=winding, own=own,
+        edge_flat=on_plane[edge[:, 0]] & on_plane[edge[:, 1]],
     )  # fmt: skip
 
 
@@ -311,11 +318,13 @@ def _pad(found: list[dict], dtype) -> ClipData:
         return np.concatenate([x, np.full((n - len(x), *x.shape[1:]), fill, x.dtype)])
 
     # the outline padded with its first vertex: sides past the last have no length
-    outline = np.stack([pad(d["outline"], n_h, 0.0) for d in found])
-    outline_ok = np.zeros(outline.shape[:2], bool)
-    for o, ok, d in zip(outline, outline_ok, found, strict=True):
-        o[len(d["outline"]) :] = d["outline"][0]
-        ok[: len(d["outline"])] = True
+    outline = np.stack(
+        [
+            np.concatenate([o, np.repeat(o[:1], n_h - len(o), 0)])
+            for o in (d["outline"] for d in found)
+        ]
+    )
+    outline_ok = np.arange(n_h)[None, :] < np.array([len(d["outline"]) for d in found])[:, None]
     along = np.zeros((3, len(found), n_h, n_e))
     for k, d in enumerate(found):
         along[:, k, : len(d["outline"]), : len(d["edge"])] = _along(d)
@@ -343,5 +352,4 @@ def _pad(found: list[dict], dtype) -> ClipData:
         along_lo=fl(along[0]),
         along_hi=fl(along[1]),
         along_sign=fl(along[2]),
-        size_m=fl([np.sqrt(d["area_m2"]) for d in found]),
     )

@@ -38,10 +38,6 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
-#: A point is strictly inside a projected polygon when it is this many machine epsilons
-#: (× the facet's size) inside each side: ties of round-off count as outside.
-INSIDE_ULPS = 0.0
-
 
 class ClipData(eqx.Module):
     """The occluders of the facets with exact shadows, padded to common sizes (traced).
@@ -69,7 +65,6 @@ class ClipData(eqx.Module):
             0 … 1) along which edge e runs (an edge in the plane: a part attached at the
             facet's edge); lo = hi = 0 where none.
         along_sign: (C, H, E) +1 where that edge runs the side's way, −1 the other way.
-        size_m: (C,) √area, the length scale of the margins.
     """
 
     normal: Float[Array, "C 3"]
@@ -90,7 +85,6 @@ class ClipData(eqx.Module):
     along_lo: Float[Array, "C H E"]
     along_hi: Float[Array, "C H E"]
     along_sign: Float[Array, "C H E"]
-    size_m: Float[Array, " C"]
 
 
 # ---------------------------------------------------------------------------
@@ -101,20 +95,20 @@ def _cross(a, b):
     return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
 
 
-def _inside(p0, p1, a, b, sign, ok, margin):
-    """(M, J) intervals [lo, hi] ⊂ [0, 1] of t where p0 + t (p1 − p0) lies inside each of J
-    convex polygons: sides a → b (J, S, 2), ``sign`` (J,) their orientation (+1: counter-
-    clockwise), ``ok`` (J, S) sides with length, ``margin`` (J, S) how far inside (× |side|).
-    Empty intervals come back as lo = hi = 0."""
+def _inside(p0, p1, a, b, sign, ok):
+    """(M, J) intervals [lo, hi] ⊂ [0, 1] of t where p0 + t (p1 − p0) lies strictly inside
+    each of J convex polygons: sides a → b (J, S, 2), ``sign`` (J,) their orientation (+1:
+    counter-clockwise), ``ok`` (J, S) sides with length. A point on a side is outside: an
+    edge a polygon shares is told apart by adjacency, not by round-off. Empty intervals
+    come back as lo = hi = 0."""
     side = b - a
     rel = p0[:, None, None, :] - a[None]
     n_ = sign[None, :, None] * _cross(side[None], rel)  # (M, J, S)
     d_ = sign[None, :, None] * _cross(side[None], (p1 - p0)[:, None, None, :])
-    tol = margin[None] * jnp.sqrt(jnp.sum(side * side, axis=-1))[None]
-    cut = (tol - n_) / jnp.where(d_ == 0, 1.0, d_)
+    cut = -n_ / jnp.where(d_ == 0, 1.0, d_)
     lower = jnp.where(ok[None] & (d_ > 0), cut, -jnp.inf)
     upper = jnp.where(ok[None] & (d_ < 0), cut, jnp.inf)
-    never = jnp.any(ok[None] & (d_ == 0) & (n_ <= tol), axis=-1)
+    never = jnp.any(ok[None] & (d_ == 0) & (n_ <= 0), axis=-1)
     lo = jnp.maximum(jnp.max(lower, axis=-1), 0.0)
     hi = jnp.minimum(jnp.min(upper, axis=-1), 1.0)
     empty = never | (lo >= hi) | ~jnp.any(ok, axis=-1)[None]  # no sides: no polygon
@@ -162,8 +156,6 @@ def blocked_area(
     b = nxt.reshape(2 * n_p, -1, 2)
     sides_ok = jnp.broadcast_to(data.side_ok, (2, *data.side_ok.shape)) & (sign[..., None] != 0)
     sides_ok = sides_ok.reshape(2 * n_p, -1)
-    strict = INSIDE_ULPS * jnp.finfo(pts.dtype).eps * data.size_m
-    margin = jnp.full(sides_ok.shape, strict, pts.dtype)
     # the projected edges on U's boundary: σ = +1 (U on the left), −1 (right) or 0 (inside U)
     left = sign[:, data.adjacent] * data.winding[None]  # (2, E, A)
     # an edge in the facet's plane projects onto itself in both sets: one edge, counted
@@ -180,25 +172,20 @@ def blocked_area(
     # an edge is on the boundary of its own polygons: they do not clip it
     pair = jnp.eye(2, dtype=bool)[:, None, :, None] | data.edge_flat[None, :, None, None]
     same = pair & data.own[None, :, None, :]  # (2, E, 2, P)
-    lo, hi = _inside(p0, p1, a, b, sign.reshape(-1), sides_ok, margin)
+    lo, hi = _inside(p0, p1, a, b, sign.reshape(-1), sides_ok)
     clipping = ~same.reshape(2 * n_e, 2 * n_p)
     lo, hi = jnp.where(clipping, lo, 0.0), jnp.where(clipping, hi, 0.0)
-    # ... within the facet's outline (counter-clockwise, boundary included)
-    # (edges in the plane strictly: one along the outline — a part attached at the
-    # facet's edge — is counted as the outline's, below)
+    # ... within the facet's outline (counter-clockwise; an edge along the outline — a
+    # part attached at the facet's edge — is not inside: it is counted as the outline's)
     o0 = data.outline
     o1 = jnp.roll(o0, -1, axis=0)
-    ones, ok_o = jnp.ones(1, pts.dtype), data.outline_ok[None]
-    zero = jnp.zeros((1, o0.shape[0]), pts.dtype)
-    t0, t1 = _inside(p0, p1, o0[None], o1[None], ones, ok_o, zero)
-    s0, s1 = _inside(p0, p1, o0[None], o1[None], ones, ok_o, zero + strict)
-    in_plane = jnp.concatenate([data.edge_flat, data.edge_flat])
-    t0, t1 = jnp.where(in_plane, s0[:, 0], t0[:, 0]), jnp.where(in_plane, s1[:, 0], t1[:, 0])
+    t0, t1 = _inside(p0, p1, o0[None], o1[None], jnp.ones(1, pts.dtype), data.outline_ok[None])
+    t0, t1 = t0[:, 0], t1[:, 0]
     kept = jnp.maximum(t1 - t0, 0.0) - _union_length(lo, hi, t0, t1)
     boundary = jnp.sum(sigma.reshape(-1) * _cross(p0, p1) * kept)
     # the outline's sides inside U; where an edge in the plane runs along one, that part
     # is U's boundary, and the side bounds F ∩ U where U lies on the facet's side of it
-    lo_o, hi_o = _inside(o0, o1, a, b, sign.reshape(-1), sides_ok, margin)
+    lo_o, hi_o = _inside(o0, o1, a, b, sign.reshape(-1), sides_ok)
     facing = jnp.where(data.along_sign > 0, left_any[0][None], right_any[0][None])  # (H, E)
     lo_o = jnp.concatenate([lo_o, jnp.where(facing, data.along_lo, 0.0)], axis=-1)
     hi_o = jnp.concatenate([hi_o, jnp.where(facing, data.along_hi, 0.0)], axis=-1)
