@@ -34,6 +34,7 @@ from test_cli import run_cli
 
 import jaxlc
 import jaxlc.dataset as dataset
+from jaxlc.errors import JaxlcError
 from jaxlc.inference.data import fit_data
 from jaxlc.inference.model import angle_between_deg, spin_model, to_device, truth_theta
 
@@ -245,3 +246,7 @@ def test_exact_glints_are_one_forward_model_too(tmp_path):
         fit_mag = data.const_mag - 2.5 * np.log10(intensity[bright])
         assert np.max(np.abs(fit_mag - mag[data.rows][bright])) < 1e-4
     assert changed > 1e-3
+    # a whole fit would clip every term at every trial spin (its solvers vmap): refused,
+    # with the fix, before any work
+    with pytest.raises(JaxlcError, match="shadow_exact = 'glints' is for single renders"):
+        jaxlc.fit_spin(scene, rendered, geo)

@@ -123,6 +123,7 @@ def with_mesh(name: str) -> str:
 # (id, argv, files {name: text or bytes}, words expected in the error line)
 
 R = ["render", "sc.toml", "geo.csv", "-o", "out.csv"]
+FIT = ["fit", "sc.toml", "lc.csv", "--geometry", "geo.csv", "-o", "fit"]
 P = ["period", "lc.csv"]
 PM = ["period", "track.txt"]
 OK = {"sc.toml": SCENE, "geo.csv": geometry_csv()}
@@ -461,6 +462,13 @@ CASES = [
         {**OK, "lc.csv": ""},
         "walkers",
     ),
+    (
+        "fit shadow exact glints",
+        [*FIT, "--shadow-exact", "glints"],
+        OK,
+        "shadow_exact = 'glints' is for single renders",
+    ),
+    ("fit shadow exact yes", [*FIT, "--shadow-exact", "yes"], OK, "--shadow-exact: shadow_exact"),
     ("crosscheck scene", ["calibrate", "crosscheck", "--scenes", "S9", "--out", "cc"], {}, "'S9'"),
     (
         "crosscheck material",

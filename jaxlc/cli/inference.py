@@ -158,6 +158,10 @@ def fit(
         float | None,
         typer.Option(help="Tumble: T_ω, ω's period in the body (with --period-s as P_ψ)."),
     ] = None,
+    shadow_exact: Annotated[
+        str | None,
+        typer.Option(help="off: fit with the shadow table when the scene asks for glints."),
+    ] = None,
 ):
     """Fit the spin state (pole, period, phase, brightness, noise) to a light curve,
     or with --attitude tumble a torque-free tumble (P_ψ, T_ω, mode, L, excitation).
@@ -166,8 +170,10 @@ def fit(
     default ~/.cache/jaxlc/xla; "off" disables it), so later fits start faster.
     """
     import jaxlc
+    from jaxlc.cli.render import render_options
     from jaxlc.inference.fit import fit_spin
     from jaxlc.inference.mcmc import FitSettings
+    from jaxlc.inference.model import check_fittable
     from jaxlc.inference.tumble_fit import fit_tumble, title
     from jaxlc.io.files import check_output
     from jaxlc.xla import enable_persistent_cache
@@ -187,6 +193,9 @@ def fit(
         seed=seed,
     )
     sc = jaxlc.load_scene(scene)
+    if shadow_exact is not None:
+        sc = dataclasses.replace(sc, render=render_options(sc, None, None, None, shadow_exact))
+    check_fittable(sc)  # before reading the data: a fit the options cannot afford
     attitude = attitude or ("tumble" if sc.attitude.model == "tumble" else "spin")
     if attitude not in ("spin", "tumble"):
         raise JaxlcError(f"--attitude {attitude!r}: give 'spin' or 'tumble'")

@@ -31,7 +31,7 @@ from jaxlc.inference import mcmc, posterior_modes
 from jaxlc.inference.data import fit_data, soft_clip
 from jaxlc.inference.harmonics import median_step_s
 from jaxlc.inference.mcmc import FitSettings
-from jaxlc.inference.model import MC_NAMES, N_LM, spin_model
+from jaxlc.inference.model import MC_NAMES, N_LM, check_fittable, spin_model
 from jaxlc.inference.period import analyse_period
 from jaxlc.inference.period_result import distinct_periods
 from jaxlc.inference.posterior_modes import weighted_samples
@@ -92,6 +92,7 @@ def fit_spin(
     rng = np.random.default_rng(settings.seed)
     timings = {}
     t0 = time.perf_counter()
+    check_fittable(scene)
     data = fit_data(lightcurve, geometry, default_exposure_s=scene.exposure_s)
     if settings.period_s is not None:
         seeds = [settings.period_s]

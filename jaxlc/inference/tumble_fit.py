@@ -33,6 +33,7 @@ from jaxlc.inference import mcmc
 from jaxlc.inference.data import fit_data, local_noise_mag
 from jaxlc.inference.fit import write_outputs
 from jaxlc.inference.mcmc import FitSettings
+from jaxlc.inference.model import check_fittable
 from jaxlc.inference.offset_marginal import marginal_ball
 from jaxlc.inference.period import analyse_period
 from jaxlc.inference.posterior_modes import mode_rows, weighted_samples
@@ -102,6 +103,7 @@ def fit_tumble(
     rng = np.random.default_rng(settings.seed)
     t0 = time.perf_counter()
     timings = {}
+    check_fittable(scene)
     data = fit_data(lightcurve, geometry, default_exposure_s=scene.exposure_s)
     pr = analyse_period(
         data.t_s, data.mag, min_period_s=settings.min_period_s, max_period_s=settings.max_period_s

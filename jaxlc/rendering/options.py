@@ -38,7 +38,8 @@ class RenderOptions:
         shadow_exact: ``"glints"``: the brightest shadowable terms of each instant get
             their lit-and-seen fraction clipped exactly instead of looked up
             (:mod:`jaxlc.rendering.exact_glints`; ~2 ms per S6 instant on a CPU
-            core); ``"off"``: the table alone.
+            core; a fit refuses it: :func:`jaxlc.inference.model.check_fittable`);
+            ``"off"``: the table alone.
         blur: ``"auto"`` (sub-exposures per exposure as its own motion needs,
             :mod:`jaxlc.rendering.adaptive`) or ``"off"`` (one, at mid-exposure).
         blur_tolerance_mag: the error allowed per exposure by the adaptive quadrature.
