@@ -68,7 +68,7 @@ class ShadowSettings:
         grid: side N of the octahedral direction grid (N² directions; N = 32
             gives ~6° spacing, 64 ~3°). 64 bounds the tail: the 99th percentile
             of |Δm| against the exact twin at phase ≤ 160° is ≤ 0.05 on S4, S6, S7
-            and S8 (``experiments/shadow_tail.py``; 0.056 on S4 at 32), at a look-up
+            and S8 (``experiments/shadow_tail.py``; 0.053 on S4 at 32), at a look-up
             cost 4 % (S4) to ~19 % (S6) higher and a 4× longer trace (S4: 30 s
             once, then cached).
         spacing: target distance between sub-points as a fraction of the mesh's

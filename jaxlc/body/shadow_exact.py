@@ -20,6 +20,8 @@ from jaxlc.body.mesh import Facets, TriangleMesh
 #: Precision grid of the polygon operations (m).
 GRID_M = 1e-7
 _FRONT = 1e-12
+#: A vertex this close to a facet's plane (m) counts as on it.
+_ON_PLANE = 1e-9
 
 
 class ExactShadows:
@@ -75,7 +77,12 @@ class ExactShadows:
         cand = (h > _FRONT).any(1) & (self.tri_facet != f)
         rel, h = rel[cand], h[cand]
         nd = n @ d
-        full = (h > _FRONT).all(1)
+        # Wholly in front: every vertex in front or on the plane. A vertex on the plane
+        # taken as a crossing's odd one cuts the triangle at that vertex twice, and the
+        # "quadrilateral" (v, b, c, v) repeats it: an invalid ring, which GEOS turned
+        # into a blocked set covering whole facets (S4's nozzle: fully visible facets,
+        # by ray casting, at 0).
+        full = (h > -_ON_PLANE).all(1)
         pieces = [rel[full]]
         # Triangles crossing the plane: keep their part in front. Rotate each so
         # that its odd vertex (alone on its side) comes first.
