@@ -6,8 +6,8 @@ exact self-shadowing (polygon clipping, :mod:`jaxlc.body.shadow_exact`, float64)
 and without shadows. The CSV's metadata records the SHA-256 of the scene file
 and of the mesh, so a test can tell when the reference is stale.
 
-Committed: every scene at n = 2,000 (S4 ~27 minutes on 2 cores: the twin needs
-~1.6 s per geometry; S6, S7 and S8 ~15-25 s each):
+Committed: every scene at n = 2,000 (S4 ~35 minutes on 2 cores: the twin needs
+~2 s per geometry; S6, S7 and S8 ~15-25 s each):
 
     python experiments/make_shadow_reference.py --n 2000 \\
         --scenes s4_falcon9 s6_boxwing s7_antenna_box s8_boom_panel

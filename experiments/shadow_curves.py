@@ -13,8 +13,11 @@ its lit samples. Prints one line per shape and writes
 
     python experiments/shadow_curves.py [--curves 40] [--samples 50] [--scenes …]
 
-The twin costs ~1.6 s per sample on S4 (40 × 50 samples: ~27 min on 2 cores) and
-~0.02 s on S6, S7 and S8.
+The twin costs ~2.3 s per sample on S4 and ~0.02 s on S6, S7 and S8, so S4 has a
+file of its own, at fewer curves and samples (~12 min on 2 cores)::
+
+    python experiments/shadow_curves.py --scenes s4_falcon9 --curves 20 --samples 30 \
+        --out experiments/results/shadow_curves_s4.csv
 
 Each curve is also evaluated with ``RenderOptions(shadow_exact="glints")``
 (:mod:`jaxlc.rendering.exact_glints`): the columns ``*_exact_glints`` and the
