@@ -44,6 +44,7 @@ from jaxlc.body.brdf import BRDFS, AbstractBRDF
 from jaxlc.body.mesh import Facets, TriangleMesh, load_body
 from jaxlc.errors import SceneError
 from jaxlc.io.toml import Section, in_range, nonzero_vector, read_toml
+from jaxlc.memo import identity_memo
 from jaxlc.rendering.options import RenderOptions, render_options_from_table
 from jaxlc.scene_attitude import AttitudeSpec, parse_attitude
 
@@ -58,6 +59,12 @@ SHIPPED_SCENES = {
     "S5": "s5_cubesat",
     "S6": "s6_boxwing",
 }
+
+
+@identity_memo()
+def _radius_m(mesh: TriangleMesh) -> float:
+    """Largest distance of a finite vertex from the body origin (mesh units; once per mesh)."""
+    return float(np.nanmax(np.linalg.norm(mesh.vertices_m, axis=1)))
 
 
 def scene_path(name: str | Path) -> Path:
@@ -113,7 +120,7 @@ class Scene:
     @functools.cached_property
     def radius_m(self) -> float:
         """The object's radius about its body origin (m, at the scene's scale; finite vertices)."""
-        return self.scale * float(np.nanmax(np.linalg.norm(self.body[0].vertices_m, axis=1)))
+        return self.scale * _radius_m(self.body[0])
 
     @functools.cached_property
     def facets(self) -> Facets:

@@ -23,6 +23,7 @@ from jaxtyping import Array, Float
 
 from jaxlc.body.brdf import AbstractBRDF
 from jaxlc.body.mesh import Facets
+from jaxlc.memo import identity_memo
 
 #: The static flags of a :class:`FacetModel`: which terms are traced.
 FLAGS = ("use_lambert", "use_as_diffuse", "use_specular", "anisotropic")
@@ -98,19 +99,13 @@ def facet_model(
             f"{len(facets.part_names)} parts {facets.part_names}"
         )
     dtype = np.dtype(dtype)
-    xp = np if _concrete([m.coefficients() for m in materials]) else jnp
+    coef = [m.coefficients() for m in materials]
+    xp = np if _concrete(coef) else jnp
     part = np.asarray(facets.part)
     area = xp.asarray(facets.areas_m2 * area_scale, dtype=dtype)
-    coef = [m.coefficients() for m in materials]
     per_part = {k: xp.stack([xp.asarray(c[k], dtype=dtype) for c in coef]) for k in COEFFICIENTS}
     per_facet = {k: v[part] for k, v in per_part.items()}
-
-    u = np.zeros_like(facets.normals)
-    w = np.zeros_like(facets.normals)
-    for i, m in enumerate(materials):
-        sel = part == i
-        if np.any(sel):
-            u[sel], w[sel] = tangent_frame(facets.normals[sel], m.tangent_axis)
+    u, w = _part_frames(facets, tuple(tuple(m.tangent_axis) for m in materials))
 
     return FacetModel(
         normals=xp.asarray(facets.normals, dtype=dtype),
@@ -128,6 +123,20 @@ def facet_model(
         use_specular=any(m.has_specular for m in materials),
         anisotropic=any(m.anisotropic for m in materials),
     )
+
+
+@identity_memo(maxsize=16)
+def _part_frames(facets: Facets, axes: tuple) -> tuple[np.ndarray, np.ndarray]:
+    """(F, 3) tangents u and w of every facet, those of part i from reference axis
+    ``axes[i]`` (:func:`tangent_frame`; once per facets and axes, not per curve)."""
+    part = np.asarray(facets.part)
+    u = np.zeros_like(facets.normals)
+    w = np.zeros_like(facets.normals)
+    for i, axis in enumerate(axes):
+        sel = part == i
+        if np.any(sel):
+            u[sel], w[sel] = tangent_frame(facets.normals[sel], axis)
+    return u, w
 
 
 def tangent_frame(normals: np.ndarray, reference_axis=(0.0, 0.0, 1.0)):

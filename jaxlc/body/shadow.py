@@ -43,6 +43,7 @@ from jaxlc.body.raycast import trace_visibility, word_layout
 from jaxlc.errors import JaxlcError
 from jaxlc.io.cache import cache_dir
 from jaxlc.io.files import atomic_output
+from jaxlc.memo import identity_memo
 
 #: Bump when the precomputation changes: cached tables of older versions are ignored.
 ALGORITHM_VERSION = 5
@@ -212,10 +213,10 @@ _LOADED: dict[tuple, ShadowData] = {}
 KEEP_TABLES = 8
 
 
-def subpoint_budget(grid: int) -> int:
-    """Most sub-points of a table at this grid side: :data:`SUBPOINT_BUDGET` at 32 × 32,
-    the same number of bits (512 MB) at any grid."""
-    return max(1, SUBPOINT_BUDGET * COARSE_GRID**2 // grid**2)
+def subpoint_budget(grid: int, total: int | None = None) -> int:
+    """Most sub-points of a table at this grid side: ``total`` (default
+    :data:`SUBPOINT_BUDGET`) at 32 × 32, the same number of bits (512 MB) at any grid."""
+    return max(1, (SUBPOINT_BUDGET if total is None else total) * COARSE_GRID**2 // grid**2)
 
 
 def _layout(mesh: TriangleMesh, facets: Facets, settings: ShadowSettings):
@@ -227,6 +228,12 @@ def _layout(mesh: TriangleMesh, facets: Facets, settings: ShadowSettings):
     (not below one a facet, nor below the triangle count, under which the trace
     hardly gets cheaper), then a coarser grid still (not below 8 × 8).
     """
+    return _budgeted_layout(mesh, facets, settings, SUBPOINT_BUDGET, TRACE_BUDGET)
+
+
+@identity_memo()
+def _budgeted_layout(mesh, facets, settings, subpoints: int, trace: int):
+    """:func:`_layout` under these budgets (memoized: once per mesh, settings and budgets)."""
     facet_ids = np.flatnonzero(facets.can_shadow)
     diag = float(np.linalg.norm(np.ptp(mesh.vertices_m, axis=0)))
     areas = facets.areas_m2[facet_ids]
@@ -234,19 +241,30 @@ def _layout(mesh: TriangleMesh, facets: Facets, settings: ShadowSettings):
     full = 32 * int(settings.words_per_facet(areas, diag).sum())  # at the spacing asked for
     grid = settings.grid
     while grid > COARSE_GRID and (
-        full > subpoint_budget(grid) or grid**2 * (full + 2 * n_tri) > TRACE_BUDGET
+        full > subpoint_budget(grid, subpoints) or grid**2 * (full + 2 * n_tri) > trace
     ):
         grid -= 1
-    per_direction = TRACE_BUDGET // grid**2  # sub-points + 2 × triangles
-    budget = subpoint_budget(grid)
+    per_direction = trace // grid**2  # sub-points + 2 × triangles
+    budget = subpoint_budget(grid, subpoints)
     if full + 2 * n_tri > per_direction:
         budget = min(budget, max(per_direction - 2 * n_tri, n_tri, len(facet_ids)))
     counts, spacing = settings.subpoints_per_facet(areas, diag, budget)
-    while grid > 8 and grid**2 * (int(counts.sum()) + 2 * n_tri) > TRACE_BUDGET:
+    while grid > 8 and grid**2 * (int(counts.sum()) + 2 * n_tri) > trace:
         grid -= 1
     order = np.argsort(counts, kind="stable")  # runs of equal counts
     used = dataclasses.replace(settings, grid=grid)
     return facet_ids[order], counts[order], used, spacing
+
+
+def _keyed_layout(mesh: TriangleMesh, facets: Facets, settings: ShadowSettings):
+    """:func:`_layout` and the table's :func:`cache_key` (hashing the mesh: once per layout)."""
+    layout = _layout(mesh, facets, settings)
+    return *layout, _layout_key(mesh, facets, *layout[:3])
+
+
+@identity_memo()
+def _layout_key(mesh, facets, facet_ids, counts, used):
+    return cache_key(mesh, facets, facet_ids, counts, used)
 
 
 def reduced_resolution(mesh: TriangleMesh, facets: Facets, settings: ShadowSettings) -> str:
@@ -279,8 +297,7 @@ def shadow_data(
     settings = settings or ShadowSettings()
     if not np.any(facets.can_shadow):
         return None
-    facet_ids, counts, settings, spacing = _layout(mesh, facets, settings)
-    key = cache_key(mesh, facets, facet_ids, counts, settings)
+    facet_ids, counts, settings, spacing, key = _keyed_layout(mesh, facets, settings)
     path = cache_dir("shadow") / f"{key}.npz"
     memo = (key, str(path), _stamp(path))
     if use_cache and memo in _LOADED:

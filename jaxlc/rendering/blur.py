@@ -32,6 +32,7 @@ import math
 import numpy as np
 
 from jaxlc.errors import JaxlcError
+from jaxlc.memo import identity_memo
 
 #: Angular scale (rad) of diffuse-only brightness changes (facet turn-on kinks).
 DIFFUSE_SCALE_RAD = 0.25
@@ -108,12 +109,19 @@ def feature_scale_rad(materials, facets=None, shadowed: bool = False) -> tuple[f
             if 1.0 / math.sqrt(n) < scale:
                 scale, feature = 1.0 / math.sqrt(n), f"specular lobe (n = {n:g})"
     if shadowed and facets is not None and np.any(facets.can_shadow):
-        size = float(np.sqrt(np.median(facets.areas_m2[facets.can_shadow])))
-        diag = float(np.linalg.norm(np.ptp(facets.centroids_m, axis=0))) or 1.0
-        edge = float(np.clip(size / diag, 0.02, DIFFUSE_SCALE_RAD))
+        edge = shadow_edge_rad(facets)
         if edge < scale:
             scale, feature = edge, "shadow edge"
     return scale, feature
+
+
+@identity_memo()
+def shadow_edge_rad(facets) -> float:
+    """Angular scale (rad) of a shadow edge on facets that can be shadowed: their median
+    size over the object's size (scale-free; once per facets)."""
+    size = float(np.sqrt(np.median(facets.areas_m2[facets.can_shadow])))
+    diag = float(np.linalg.norm(np.ptp(facets.centroids_m, axis=0))) or 1.0
+    return float(np.clip(size / diag, 0.02, DIFFUSE_SCALE_RAD))
 
 
 def direction_rate_rad_s(directions: np.ndarray, t_s: np.ndarray) -> float:

@@ -84,7 +84,8 @@ def make_plan(scene, geo, options: RenderOptions | None = None, facets=None) -> 
     """
     options = options or RenderOptions()
     own_facets = facets
-    facets = scene.facets if facets is None else facets
+    # the mesh file's units: nothing planned from the facets depends on the scene's scale
+    facets = scene.body[1] if facets is None else facets
     materials = scene.materials_for(facets.part_names)
     shadowable = int(np.count_nonzero(facets.can_shadow))
     if facets.convex:

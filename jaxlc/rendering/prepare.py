@@ -42,6 +42,7 @@ from jaxlc.body.mesh import Facets
 from jaxlc.body.shadow import ShadowSettings, shadow_data
 from jaxlc.body.shadow_lookup import shadow_table
 from jaxlc.errors import JaxlcError
+from jaxlc.memo import identity_memo
 from jaxlc.rendering.adaptive import (
     Curve,
     Refinement,
@@ -104,15 +105,23 @@ def space_object(
     if data is None:
         model = facet_model(facets, materials, dtype=dtype, area_scale=area_scale)
         return SpaceObject(model=_lanes(model), attitude=attitude)
-    order = np.concatenate([data.facet_ids, np.flatnonzero(~facets.can_shadow)])
     return SpaceObject(
         model=_lanes(
-            facet_model(facets.subset(order), materials, dtype=dtype, area_scale=area_scale)
+            facet_model(
+                table_order(facets, data.facet_ids), materials, dtype=dtype, area_scale=area_scale
+            )
         ),
         attitude=attitude,
         shadow=shadow_table(data, dtype),
         exact=kit_for(data, mesh, facets, dtype) if exact_glints else None,
     )
+
+
+@identity_memo()
+def table_order(facets: Facets, facet_ids: np.ndarray) -> Facets:
+    """The facets that a shadow table covers (``facet_ids``, in its order), then the others:
+    the order of a shadowed :class:`SpaceObject`'s model (once per table, not per curve)."""
+    return facets.subset(np.concatenate([facet_ids, np.flatnonzero(~facets.can_shadow)]))
 
 
 #: Objects with fewer facets than this get inert facets up to a multiple of
