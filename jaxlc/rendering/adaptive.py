@@ -159,8 +159,9 @@ def refine(
     tol = tolerance_mag / MAG_PER_REL
     probes = [probe_instants(c.geo, c.rows, [0.5], c.t0_s) for c in curves]
     mean = [np.array(v, np.float64) for v in evaluate(probes)]  # own, writable copies
-    # the values of the nested levels' instants, in evaluation order (NaN: not evaluated)
-    values = [[m[:, None].copy()] for m in mean]
+    # the values at the nested levels' instants (in evaluation order) of the exposures
+    # still refined: row j is exposure todo[j] of the level (the active set only shrinks)
+    values = [m[:, None].copy() for m in mean]
     # every level's means (NaN until reached), kept only for the least-level choice
     by_level = []
     if least_levels:
@@ -184,14 +185,11 @@ def refine(
         ]
         new = evaluate(probes)
         for i, (c, t, v) in enumerate(zip(curves, todo, new, strict=True)):
-            got = np.asarray(v, np.float64).reshape(len(t), len(frac))
-            if k <= NESTED_LEVELS:  # kept: the next nested level reuses these instants
-                added = np.full((len(c.rows), len(frac)), np.nan)
-                added[t] = got
-                values[i].append(added)
-                got = np.concatenate([x[t] for x in values[i]], axis=1)
             if not len(t):
                 continue
+            got = np.asarray(v, np.float64).reshape(len(t), len(frac))
+            if k <= NESTED_LEVELS:  # kept: the next nested level reuses these instants
+                got = values[i] = np.concatenate([values[i], got], axis=1)
             m = got @ stacked_weights(k)
             change = np.abs(m - mean[i][t]) / divisor(k, c.resolved_level)
             carried = own[i][t] * (level_count(k - 1) / level_count(k)) ** CARRY_POWER
@@ -201,6 +199,8 @@ def refine(
                 by_level[i][t, k] = m
             done = (k >= c.first_level) & (err <= tol * np.maximum(m, floor[i]))
             active[i][t[done]] = False
+            if k < NESTED_LEVELS:
+                values[i] = values[i][~done]
     if least_levels:
         for i, a in enumerate(active):
             done = np.flatnonzero(~a & (level[i] > 0))
