@@ -48,6 +48,8 @@ def identity_memo(maxsize: int = 8):
     """Decorator: remember the last ``maxsize`` results of a function of positional
     arguments (first in, first out). ``f.cache_clear()`` empties it.
 
+    The function must return new arrays, not its arguments' own: they are made read-only.
+
     Example:
         >>> @identity_memo()
         ... def layout(mesh, facets, settings): ...
