@@ -267,6 +267,13 @@ def _layout_key(mesh, facets, facet_ids, counts, used):
     return cache_key(mesh, facets, facet_ids, counts, used)
 
 
+@identity_memo()
+def table_order(facets: Facets, facet_ids: np.ndarray) -> Facets:
+    """The facets that a table covers (``facet_ids``, in its order), then the others: the
+    order of a shadowed object's facet model (once per table and process, not per curve)."""
+    return facets.subset(np.concatenate([facet_ids, np.flatnonzero(~facets.can_shadow)]))
+
+
 def reduced_resolution(mesh: TriangleMesh, facets: Facets, settings: ShadowSettings) -> str:
     """The plan line's note on a table: empty when it gets the resolution asked for,
     else how much coarser the budgets made it."""

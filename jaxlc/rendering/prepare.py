@@ -39,10 +39,9 @@ import pandas as pd
 
 from jaxlc.body.facet_model import facet_model, pad_facets
 from jaxlc.body.mesh import Facets
-from jaxlc.body.shadow import ShadowSettings, shadow_data
+from jaxlc.body.shadow import ShadowSettings, shadow_data, table_order
 from jaxlc.body.shadow_lookup import shadow_table
 from jaxlc.errors import JaxlcError
-from jaxlc.memo import identity_memo
 from jaxlc.rendering.adaptive import (
     Curve,
     Refinement,
@@ -115,13 +114,6 @@ def space_object(
         shadow=shadow_table(data, dtype),
         exact=kit_for(data, mesh, facets, dtype) if exact_glints else None,
     )
-
-
-@identity_memo()
-def table_order(facets: Facets, facet_ids: np.ndarray) -> Facets:
-    """The facets that a shadow table covers (``facet_ids``, in its order), then the others:
-    the order of a shadowed :class:`SpaceObject`'s model (once per table, not per curve)."""
-    return facets.subset(np.concatenate([facet_ids, np.flatnonzero(~facets.can_shadow)]))
 
 
 #: Objects with fewer facets than this get inert facets up to a multiple of
