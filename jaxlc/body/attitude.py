@@ -205,7 +205,7 @@ class Spin(AbstractAttitude):
         t = np.asarray(t_s, dtype=np.float64)
         period = float(self.period_s) if period_s is None else float(period_s)
         turns = np.floor(t / period)
-        dtype = np.dtype(self.body_axis.dtype)  # the first leaf's (leaf_dtype), found faster
+        dtype = leaf_dtype(self)
         return SpinTimes(
             turns=turns.astype(dtype),
             remainder_s=(t - turns * period).astype(dtype),

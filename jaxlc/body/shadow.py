@@ -220,7 +220,8 @@ def subpoint_budget(grid: int, total: int | None = None) -> int:
 
 
 def _layout(mesh: TriangleMesh, facets: Facets, settings: ShadowSettings):
-    """(facet ids sorted by count, sub-points per facet, settings used, spacing used).
+    """(facet ids sorted by count, sub-points per facet, settings used, spacing used, the
+    table's :func:`cache_key`).
 
     The settings asked for, unless the table would pass its bit budget
     (:func:`subpoint_budget`) or its trace :data:`TRACE_BUDGET`: then first a
@@ -233,7 +234,8 @@ def _layout(mesh: TriangleMesh, facets: Facets, settings: ShadowSettings):
 
 @identity_memo()
 def _budgeted_layout(mesh, facets, settings, subpoints: int, trace: int):
-    """:func:`_layout` under these budgets (memoized: once per mesh, settings and budgets)."""
+    """:func:`_layout` under these budgets (memoized: once per mesh, settings and budgets,
+    the mesh hashed for the key once too)."""
     facet_ids = np.flatnonzero(facets.can_shadow)
     diag = float(np.linalg.norm(np.ptp(mesh.vertices_m, axis=0)))
     areas = facets.areas_m2[facet_ids]
@@ -252,19 +254,9 @@ def _budgeted_layout(mesh, facets, settings, subpoints: int, trace: int):
     while grid > 8 and grid**2 * (int(counts.sum()) + 2 * n_tri) > trace:
         grid -= 1
     order = np.argsort(counts, kind="stable")  # runs of equal counts
+    facet_ids, counts = facet_ids[order], counts[order]
     used = dataclasses.replace(settings, grid=grid)
-    return facet_ids[order], counts[order], used, spacing
-
-
-def _keyed_layout(mesh: TriangleMesh, facets: Facets, settings: ShadowSettings):
-    """:func:`_layout` and the table's :func:`cache_key` (hashing the mesh: once per layout)."""
-    layout = _layout(mesh, facets, settings)
-    return *layout, _layout_key(mesh, facets, *layout[:3])
-
-
-@identity_memo()
-def _layout_key(mesh, facets, facet_ids, counts, used):
-    return cache_key(mesh, facets, facet_ids, counts, used)
+    return facet_ids, counts, used, spacing, cache_key(mesh, facets, facet_ids, counts, used)
 
 
 @identity_memo()
@@ -277,7 +269,7 @@ def table_order(facets: Facets, facet_ids: np.ndarray) -> Facets:
 def reduced_resolution(mesh: TriangleMesh, facets: Facets, settings: ShadowSettings) -> str:
     """The plan line's note on a table: empty when it gets the resolution asked for,
     else how much coarser the budgets made it."""
-    _, counts, used, spacing = _layout(mesh, facets, settings)
+    _, counts, used, spacing, _ = _layout(mesh, facets, settings)
     if counts.min() >= 32 and spacing == settings.spacing and used.grid == settings.grid:
         return ""
     lo, hi = int(counts.min()), int(counts.max())
@@ -304,7 +296,7 @@ def shadow_data(
     settings = settings or ShadowSettings()
     if not np.any(facets.can_shadow):
         return None
-    facet_ids, counts, settings, spacing, key = _keyed_layout(mesh, facets, settings)
+    facet_ids, counts, settings, spacing, key = _layout(mesh, facets, settings)
     path = cache_dir("shadow") / f"{key}.npz"
     memo = (key, str(path), _stamp(path))
     if use_cache and memo in _LOADED:
