@@ -87,28 +87,34 @@ class Occluders:
         return out
 
 
-def hits(pa, pb, level, a, b, h, t) -> np.ndarray:
-    """(K,) whether point k (pa, pb) lies inside triangle t[k] (corner coordinates
-    a, b, depths h: three (M,) arrays each) where its depth exceeds level[k]."""
-    a0, a1, a2, b0, b1, b2 = a[0][t], a[1][t], a[2][t], b[0][t], b[1][t], b[2][t]
+def hits(pa, pb, level, a, b, h, t=None, xp=np):
+    """Whether point k (pa, pb) lies inside triangle t[k] (corner coordinates a, b,
+    depths h: three (M,) arrays each) where its depth exceeds level[k].
+
+    ``t`` None: every point against every triangle, by broadcasting (pa, pb, level
+    (P, 1) against the (1, M) corners: (P, M)). ``xp``: numpy, or ``jax.numpy`` inside
+    a traced function (:mod:`jaxlc.body.shadow_rays`)."""
+    a0, a1, a2, b0, b1, b2 = (x if t is None else x[t] for x in (*a, *b))
     w0 = (b2 - b1) * (pa - a1) - (a2 - a1) * (pb - b1)  # edge functions: barycentric × 2·area
     w1 = (b0 - b2) * (pa - a2) - (a0 - a2) * (pb - b2)
     w2 = (b1 - b0) * (pa - a0) - (a1 - a0) * (pb - b0)
     total = w0 + w1 + w2
     inside = ((w0 >= 0) & (w1 >= 0) & (w2 >= 0)) | ((w0 <= 0) & (w1 <= 0) & (w2 <= 0))
-    inside &= np.abs(total) > 1e-30
-    depth_x_total = w0 * h[0][t] + w1 * h[1][t] + w2 * h[2][t]
-    return inside & np.where(
+    inside &= xp.abs(total) > 1e-30
+    h0, h1, h2 = (x if t is None else x[t] for x in h)
+    depth_x_total = w0 * h0 + w1 * h1 + w2 * h2
+    return inside & xp.where(
         total > 0, depth_x_total > level * total, depth_x_total < level * total
     )
 
 
-def plane_basis(d: np.ndarray) -> np.ndarray:
-    """(3, 3) rows e1, e2, d: two unit vectors spanning the plane perpendicular to d, and d."""
-    helper = np.array([1.0, 0.0, 0.0]) if abs(d[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    e1 = np.cross(d, helper)
-    e1 /= np.linalg.norm(e1)
-    return np.stack([e1, np.cross(d, e1), d])
+def plane_basis(d, xp=np):
+    """(3, 3) rows e1, e2, d: two unit vectors spanning the plane perpendicular to d, and d
+    (``xp``: numpy, or ``jax.numpy`` in a traced function)."""
+    helper = xp.where(xp.abs(d[0]) < 0.9, xp.asarray([1.0, 0.0, 0.0]), xp.asarray([0.0, 1.0, 0.0]))
+    e1 = xp.cross(d, helper)
+    e1 = e1 / xp.linalg.norm(e1)
+    return xp.stack([e1, xp.cross(d, e1), d])
 
 
 class _Grid:

@@ -31,6 +31,10 @@ THREADS = max(1, min(4, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaf
 #: the plane by this angle (rad; 0.75°, 1/20 of the 32-grid's node spacing): the
 #: limit from above.
 IN_PLANE_LIFT_RAD = 0.013
+#: Sub-points sit this far (× the mesh's bounding-box diagonal) above their facet.
+SURFACE_LIFT = 1e-5
+#: A triangle blocks a ray only this far (× the diagonal) beyond the ray's start.
+DEPTH_MARGIN = 1e-6
 #: Most (direction, facet) pairs of one block of the horizon fix-up.
 MIRROR_BLOCK = 1 << 22
 
@@ -111,7 +115,7 @@ def word_layout(counts: np.ndarray) -> tuple[np.ndarray, int]:
 # Precomputation: ray casting on the grid
 
 
-def _is_watertight(mesh: TriangleMesh) -> bool:
+def is_watertight(mesh: TriangleMesh) -> bool:
     import trimesh
 
     tm = trimesh.Trimesh(mesh.vertices_m, mesh.faces, process=False)
@@ -136,7 +140,7 @@ def trace_visibility(
     """
     dirs = octahedral_directions(grid)
     valid = facets.triangle_facet >= 0
-    blockers = Occluders(mesh.vertices_m[mesh.faces[valid]], cull_back=_is_watertight(mesh))
+    blockers = Occluders(mesh.vertices_m[mesh.faces[valid]], cull_back=is_watertight(mesh))
     diag = float(np.linalg.norm(np.ptp(mesh.vertices_m, axis=0)))
     normals = facets.normals[facet_ids]
     counts = np.asarray(counts, dtype=np.int64)
@@ -144,7 +148,7 @@ def trace_visibility(
     owner = np.repeat(np.arange(len(facet_ids)), counts)  # facet row of each sub-point
     bit = np.arange(len(owner)) + np.repeat(start - (np.cumsum(counts) - counts), counts)
     pts = sub_points(mesh, facets, facet_ids, counts)
-    pts += 1e-5 * diag * normals[owner]  # lift off the surface
+    pts += SURFACE_LIFT * diag * normals[owner]  # lift off the surface
     pts_t = np.ascontiguousarray(pts.T, dtype=np.float32)
     del pts
 
@@ -154,7 +158,7 @@ def trace_visibility(
         cos = normals @ d
         facing = (cos > 1e-9)[owner]  # sub-points above their facet's horizon
         seen = np.zeros(32 * n_words, dtype=bool)
-        seen[bit[facing]] = ~blockers.occluded(pts_t, d, 1e-6 * diag, facing)[facing]
+        seen[bit[facing]] = ~blockers.occluded(pts_t, d, DEPTH_MARGIN * diag, facing)[facing]
         # A node in a facet's plane takes the limit from above: the ray lifted
         # slightly off the plane (else its zeros darken every grazing look-up).
         in_plane = np.flatnonzero(np.abs(cos) <= 1e-9)
@@ -164,7 +168,7 @@ def trace_visibility(
             want = np.isin(owner, members)
             up = d + lift * normals[members[0]]
             up /= np.linalg.norm(up)
-            seen[bit[want]] = ~blockers.occluded(pts_t, up, 1e-6 * diag, want)[want]
+            seen[bit[want]] = ~blockers.occluded(pts_t, up, DEPTH_MARGIN * diag, want)[want]
         return pack_bits(seen.reshape(-1, 32)).ravel()
 
     packed = np.zeros((len(dirs), n_words), np.uint32)

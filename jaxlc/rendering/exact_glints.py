@@ -16,6 +16,13 @@ over 1,756 random geometries each (``experiments/shadow_tail.py``) the largest
 error is 1.0 %, 0.01 % and 0.08 % of the median I/E instead of 20×, 6 % and 81 %
 (max |Δm| 0.005, 0.000, 0.001 mag).
 
+A facet with more occluders than the clipping takes (every facet of S4's nozzle
+bell, whose inner wall glints through the rim's shadow) has its fraction counted on
+rays instead (:mod:`jaxlc.body.shadow_rays`: 512 sub-points, within 0.7 % of the
+twin where the table is 3–15 % off): S4's curves whose every error is within 2 % of
+their median flux go from 16 to all 20 (30 samples each; worst 5.7 % → 1.5 %), at ~110 ms
+per 30-sample curve on a CPU core.
+
 :func:`exact_kit` (host, once per object) gathers what that needs;
 :func:`glint_correction` (traced) returns the change of I/E per instant.
 """
@@ -33,9 +40,10 @@ from jaxlc.body.facet_model import FacetModel, facet_contributions
 from jaxlc.body.mesh import Facets, TriangleMesh
 from jaxlc.body.shadow import KEEP_TABLES, ShadowData
 from jaxlc.body.shadow_clip import ClipData, blocked_area
+from jaxlc.body.shadow_rays import RayData, ray_data, ray_fraction
 
 #: Kits made in this process, by (table cache key, dtype).
-_KITS: dict[tuple[str, str], "ExactKit | None"] = {}
+_KITS: dict[tuple[str, str], "ExactKit"] = {}
 
 #: A table fraction within this of 0 or 1 counts as not partly shadowed.
 PARTIAL = 1e-6
@@ -52,27 +60,32 @@ UNSHADOWED_WEIGHT = 0.02
 
 
 class ExactKit(eqx.Module):
-    """The facets with exact shadows of one object (traced).
+    """The facets with exact shadows of one object (traced): K clipped ones, then R whose
+    rays are cast (:mod:`jaxlc.body.shadow_rays`: the clipping takes only a few dozen
+    occluders).
 
     Attributes:
-        clip: their C pieces' occluders.
-        rows: (K,) their rows in the object's model (and shadow table).
-        pieces: (K, N) the pieces of each facet (padding repeats one, with ``piece_ok`` False).
+        clip: the C pieces' occluders of the clipped facets (None: none is clipped).
+        rows: (K + R,) their rows in the object's model (and shadow table).
+        pieces: (K, N) the pieces of each clipped facet (padding repeats one, with
+            ``piece_ok`` False).
         piece_ok: (K, N) real entries of ``pieces``.
-        area_m2: (K,) facet areas (of the mesh file: the fractions do not depend on scale).
+        area_m2: (K,) clipped facets' areas (of the mesh file: the fractions do not
+            depend on scale).
+        rays: the sub-points of the R others (None: every facet is clipped).
     """
 
-    clip: ClipData
-    rows: Int[Array, " K"]
+    clip: ClipData | None
+    rows: Int[Array, " KR"]
     pieces: Int[Array, "K N"]
     piece_ok: Array
     area_m2: Float[Array, " K"]
+    rays: RayData | None = None
 
 
 def kit_for(data: ShadowData, mesh: TriangleMesh, facets: Facets, dtype=np.float32):
     """:func:`exact_kit` of an object with shadow table ``data``, made once per table and
-    dtype in this process (every curve of a dataset class shares it); None if no facet
-    is supported."""
+    dtype in this process (every curve of a dataset class shares it)."""
     memo = (data.key, str(np.dtype(dtype))) if data.key else None
     if memo in _KITS:
         return _KITS[memo]
@@ -86,15 +99,15 @@ def kit_for(data: ShadowData, mesh: TriangleMesh, facets: Facets, dtype=np.float
 
 def exact_kit(
     mesh: TriangleMesh, facets: Facets, facet_ids: np.ndarray, dtype=np.float32
-) -> ExactKit | None:
+) -> ExactKit:
     """The exact-shadow kit of an object whose shadow table covers ``facet_ids`` (its
-    model's first rows, in that order), or None when no facet is supported."""
+    model's first rows, in that order): clipping where it takes the facet, rays else."""
     clip, owner = clip_data(mesh, facets, facet_ids, dtype=dtype)
-    if clip is None:
-        return None
     supported = np.unique(owner)
-    rows = np.array([int(np.flatnonzero(facet_ids == f)[0]) for f in supported])
-    width = max(int(np.sum(owner == f)) for f in supported)
+    cast = np.setdiff1d(np.asarray(facet_ids), supported)
+    row_of = {int(f): j for j, f in enumerate(facet_ids)}
+    rows = np.array([row_of[int(f)] for f in (*supported, *cast)], np.int64)
+    width = max((int(np.sum(owner == f)) for f in supported), default=1)
     pieces = np.zeros((len(supported), width), np.int32)
     ok = np.zeros((len(supported), width), bool)
     for k, f in enumerate(supported):
@@ -107,6 +120,7 @@ def exact_kit(
         pieces=jnp.asarray(pieces),
         piece_ok=jnp.asarray(ok),
         area_m2=jnp.asarray(facets.areas_m2[supported], dtype),
+        rays=ray_data(mesh, facets, cast, dtype) if len(cast) else None,
     )
 
 
@@ -143,11 +157,27 @@ def glint_correction(
     looked_up = jnp.take_along_axis(table, best, axis=1)
     gate = (term > 0) & (term >= EXACT_SHARE * total[:, None])
 
-    def exact(s_i, v_i, k_i):
+    n_clip = kit.pieces.shape[0]
+
+    def clipped(s_i, v_i, k_i):
         pieces = jax.tree_util.tree_map(lambda x: x[kit.pieces[k_i]], kit.clip)
         area = jax.vmap(blocked_area, in_axes=(0, None, None))(pieces, s_i, v_i)
         blocked = jnp.sum(jnp.where(kit.piece_ok[k_i], area, 0.0))
         return (1.0 - blocked / kit.area_m2[k_i]).astype(table.dtype)
+
+    def cast(s_i, v_i, k_i):
+        return ray_fraction(kit.rays, k_i, s_i, v_i).astype(table.dtype)
+
+    def exact(s_i, v_i, k_i):
+        if kit.rays is None:
+            return clipped(s_i, v_i, k_i)
+        if kit.clip is None:
+            return cast(s_i, v_i, k_i)
+        return jax.lax.cond(
+            k_i < n_clip,
+            lambda: clipped(s_i, v_i, jnp.minimum(k_i, n_clip - 1)),
+            lambda: cast(s_i, v_i, jnp.maximum(k_i - n_clip, 0)),
+        )
 
     def one(args):  # one instant: its chosen terms one after the other (a cond each)
         s_i, v_i, k_i, gate_i, table_i = args

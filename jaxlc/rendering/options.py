@@ -36,9 +36,10 @@ class RenderOptions:
             shadow itself) or ``"off"``.
         shadow: resolution of the shadow approximation.
         shadow_exact: ``"glints"``: the brightest shadowable terms of each instant get
-            their lit-and-seen fraction clipped exactly instead of looked up
-            (:mod:`jaxlc.rendering.exact_glints`; ~2 ms per S6 instant on a CPU
-            core; a fit refuses it: :func:`jaxlc.inference.model.check_fittable`);
+            their lit-and-seen fraction clipped exactly instead of looked up, or
+            counted on 512 rays where a facet has too many occluders to clip
+            (:mod:`jaxlc.rendering.exact_glints`; ~2 ms per S6 instant, ~4 ms per S4
+            instant on a CPU core; a fit refuses it: :func:`jaxlc.inference.model.check_fittable`);
             ``"off"``: the table alone.
         blur: ``"auto"`` (sub-exposures per exposure as its own motion needs,
             :mod:`jaxlc.rendering.adaptive`) or ``"off"`` (one, at mid-exposure).

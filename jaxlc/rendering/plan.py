@@ -20,6 +20,7 @@ import dataclasses
 import numpy as np
 
 from jaxlc.body.shadow import ShadowSettings, reduced_resolution
+from jaxlc.body.shadow_rays import RAY_POINTS
 from jaxlc.rendering.blur import (
     BlurChoice,
     choose_subsamples,
@@ -102,7 +103,10 @@ def make_plan(scene, geo, options: RenderOptions | None = None, facets=None) -> 
         mesh, own = scene.body  # a large mesh's table is coarser: say so
         why += reduced_resolution(mesh, own if own_facets is None else own_facets, s)
         if options.shadow_exact == "glints":
-            why += "; glints of partly shadowed facets clipped exactly"
+            why += (
+                "; glints of partly shadowed facets clipped exactly (counted on "
+                f"{RAY_POINTS} rays where a facet has too many occluders to clip)"
+            )
         shadow = s
     idx = np.flatnonzero(geo.visible)
     blur, blur_reason = choose_blur(
