@@ -209,3 +209,21 @@ def test_exact_glints_take_s4s_nozzle_glints(s4_twin):
         rel[glints] = np.abs(np.asarray(got, np.float64) - ref) / ref
     assert rel[False].min() > 0.005
     assert rel[True].max() < 0.004
+
+
+def test_ray_kits_stay_within_their_point_budget():
+    """A large mesh's kit gets fewer rays per facet, never more than the budget's points
+    (down to the minimum), so asking for exact glints cannot exhaust memory."""
+    from jaxlc.body.shadow_rays import (
+        MIN_RAY_POINTS,
+        RAY_POINT_BUDGET,
+        RAY_POINTS,
+        ray_points,
+    )
+
+    assert ray_points(1_104) == RAY_POINTS  # S4's nozzle and engine
+    for n in (10_000, 20_000, 65_536):
+        k = ray_points(n)
+        assert MIN_RAY_POINTS <= k < RAY_POINTS and k * n <= RAY_POINT_BUDGET
+        assert 2 * k * n > RAY_POINT_BUDGET  # no fewer than the budget allows
+    assert ray_points(10**7) == MIN_RAY_POINTS

@@ -116,6 +116,8 @@ def word_layout(counts: np.ndarray) -> tuple[np.ndarray, int]:
 
 
 def is_watertight(mesh: TriangleMesh) -> bool:
+    """Whether the mesh is closed (vertices merged to 1 µm): a ray leaving its surface can
+    then only be blocked by a triangle facing against it."""
     import trimesh
 
     tm = trimesh.Trimesh(mesh.vertices_m, mesh.faces, process=False)

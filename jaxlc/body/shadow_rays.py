@@ -31,8 +31,20 @@ from jaxlc.body.mesh import Facets, TriangleMesh
 from jaxlc.body.occlusion import hits, plane_basis
 from jaxlc.body.raycast import DEPTH_MARGIN, SURFACE_LIFT, is_watertight, sub_points
 
-#: Sub-points per facet whose rays are cast.
+#: Sub-points per facet whose rays are cast (fewer on a large mesh: :func:`ray_points`).
 RAY_POINTS = 512
+#: Most sub-points of one kit (48 MB of float32 points), and the fewest a facet gets.
+RAY_POINT_BUDGET = 1 << 22
+MIN_RAY_POINTS = 64
+
+
+def ray_points(n_facets: int) -> int:
+    """Sub-points per facet of a kit of ``n_facets`` facets: :data:`RAY_POINTS`, halved
+    while the kit would exceed :data:`RAY_POINT_BUDGET` (not below :data:`MIN_RAY_POINTS`)."""
+    k = RAY_POINTS
+    while k > MIN_RAY_POINTS and k * n_facets > RAY_POINT_BUDGET:
+        k //= 2
+    return k
 
 
 class RayData(eqx.Module):
@@ -57,15 +69,16 @@ def ray_data(
     mesh: TriangleMesh, facets: Facets, facet_ids: np.ndarray, dtype=np.float32
 ) -> RayData:
     """The ray kit of facets ``facet_ids`` (host, once per mesh): their
-    :data:`RAY_POINTS` sub-points placed and lifted as the shadow table's are."""
+    :func:`ray_points` sub-points each, placed and lifted as the shadow table's are."""
     ids = np.asarray(facet_ids, np.int64)
     valid = facets.triangle_facet >= 0
     tris = np.asarray(mesh.vertices_m[mesh.faces[valid]], np.float64)
     normal = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
     normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
     diag = float(np.linalg.norm(np.ptp(mesh.vertices_m, axis=0)))
-    pts = sub_points(mesh, facets, ids, np.full(len(ids), RAY_POINTS))
-    pts = pts.reshape(len(ids), RAY_POINTS, 3) + SURFACE_LIFT * diag * facets.normals[ids, None]
+    k = ray_points(len(ids))
+    pts = sub_points(mesh, facets, ids, np.full(len(ids), k))
+    pts = pts.reshape(len(ids), k, 3) + SURFACE_LIFT * diag * facets.normals[ids, None]
     return RayData(
         points=jnp.asarray(pts, dtype),
         corners=jnp.asarray(np.moveaxis(tris, 1, 0), dtype),

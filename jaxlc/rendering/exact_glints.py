@@ -18,7 +18,7 @@ error is 1.0 %, 0.01 % and 0.08 % of the median I/E instead of 20×, 6 % and 81 
 
 A facet with more occluders than the clipping takes (every facet of S4's nozzle
 bell, whose inner wall glints through the rim's shadow) has its fraction counted on
-rays instead (:mod:`jaxlc.body.shadow_rays`: 512 sub-points, within 0.7 % of the
+rays instead (:mod:`jaxlc.body.shadow_rays`: 512 sub-points, within 1.2 % of the
 twin where the table is 3–15 % off): S4's curves whose every error is within 2 % of
 their median flux go from 16 to all 20 (30 samples each; worst 5.7 % → 1.5 %), at ~110 ms
 per 30-sample curve on a CPU core.

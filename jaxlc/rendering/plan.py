@@ -105,7 +105,7 @@ def make_plan(scene, geo, options: RenderOptions | None = None, facets=None) -> 
         if options.shadow_exact == "glints":
             why += (
                 "; glints of partly shadowed facets clipped exactly (counted on "
-                f"{RAY_POINTS} rays where a facet has too many occluders to clip)"
+                f"up to {RAY_POINTS} rays where a facet has too many occluders to clip)"
             )
         shadow = s
     idx = np.flatnonzero(geo.visible)
