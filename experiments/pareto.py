@@ -10,8 +10,8 @@ Knobs and their error references:
   tests/data/shadow_reference_*.csv lit and seen at phase ≤ 160°,
   :func:`shadow_tail.error_summary`),
   with the one-off precomputation time and the table's memory, and (full runs) the
-  default settings with ``shadow_exact = "glints"`` where the exact clip covers
-  facets (S6; no S4 facet is within its polygon limit);
+  default settings with ``shadow_exact = "glints"`` (S6: clipped exactly; S4: its
+  nozzle's facets counted on rays, :mod:`jaxlc.body.shadow_rays`);
 * motion blur — sub-exposures per exposure on S5, S4 and S6 against 256
   sub-exposures (max |Δm| over exposures within 5 mag of the pass's median):
   fixed counts, and the default adaptive quadrature at four tolerances (its
@@ -202,13 +202,13 @@ def shadow_rows(table, repeats_s, quick):
 
 def glints_row(sid, scene, table, plain, s, v, exact, keep, repeats_s) -> dict | None:
     """The default shadow settings with ``shadow_exact = "glints"``: errors over the same
-    geometries and the cost of one curve; None (and a note) where no facet of the scene is
-    within the exact clip's limits (S4)."""
+    geometries and the cost of one curve; None (and a note) where the scene has no facet
+    that can be shadowed."""
     st = ShadowSettings()
     opts = RenderOptions(shadow=st, blur="off", shadow_exact="glints")
     prepared = jaxlc.prepare(scene, table, opts)
     if prepared.object.exact is None:
-        print(f"  {sid} exact glints: no facet within the clip's polygon limit, no row")
+        print(f"  {sid} exact glints: no facet can be shadowed, no row")
         return None
     approx = jax.jit(body_intensity)(prepared.object, s, v)
     sec, rel = relative_time(prepared, plain, repeats_s)
