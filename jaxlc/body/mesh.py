@@ -62,6 +62,12 @@ class TriangleMesh:
     def n_triangles(self) -> int:
         return int(self.faces.shape[0])
 
+    @property
+    def diagonal_m(self) -> float:
+        """Length of the bounding box's diagonal (m): the mesh's size, which the shadow
+        precomputation's spacings and margins are fractions of."""
+        return float(np.linalg.norm(np.ptp(self.vertices_m, axis=0)))
+
     def scaled(self, scale: float) -> TriangleMesh:
         """The mesh with every coordinate multiplied by ``scale``."""
         if scale == 1.0:

@@ -143,7 +143,7 @@ def trace_visibility(
     dirs = octahedral_directions(grid)
     valid = facets.triangle_facet >= 0
     blockers = Occluders(mesh.vertices_m[mesh.faces[valid]], cull_back=is_watertight(mesh))
-    diag = float(np.linalg.norm(np.ptp(mesh.vertices_m, axis=0)))
+    diag = mesh.diagonal_m
     normals = facets.normals[facet_ids]
     counts = np.asarray(counts, dtype=np.int64)
     start, n_words = word_layout(counts)

@@ -237,7 +237,7 @@ def _budgeted_layout(mesh, facets, settings, subpoints: int, trace: int):
     """:func:`_layout` under these budgets (memoized: once per mesh, settings and budgets,
     the mesh hashed for the key once too)."""
     facet_ids = np.flatnonzero(facets.can_shadow)
-    diag = float(np.linalg.norm(np.ptp(mesh.vertices_m, axis=0)))
+    diag = mesh.diagonal_m
     areas = facets.areas_m2[facet_ids]
     n_tri = int(np.count_nonzero(facets.triangle_facet >= 0))
     full = 32 * int(settings.words_per_facet(areas, diag).sum())  # at the spacing asked for

@@ -28,7 +28,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from jaxlc.body.mesh import Facets, TriangleMesh
-from jaxlc.body.occlusion import hits, plane_basis
+from jaxlc.body.occlusion import Occluders, hits, plane_basis
 from jaxlc.body.raycast import DEPTH_MARGIN, SURFACE_LIFT, is_watertight, sub_points
 
 #: Sub-points per facet whose rays are cast (fewer on a large mesh: :func:`ray_points`).
@@ -71,20 +71,18 @@ def ray_data(
     """The ray kit of facets ``facet_ids`` (host, once per mesh): their
     :func:`ray_points` sub-points each, placed and lifted as the shadow table's are."""
     ids = np.asarray(facet_ids, np.int64)
-    valid = facets.triangle_facet >= 0
-    tris = np.asarray(mesh.vertices_m[mesh.faces[valid]], np.float64)
-    normal = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
-    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
-    diag = float(np.linalg.norm(np.ptp(mesh.vertices_m, axis=0)))
+    tris = mesh.vertices_m[mesh.faces[facets.triangle_facet >= 0]]
+    blockers = Occluders(tris, cull_back=is_watertight(mesh))  # as the table's trace
+    diag = mesh.diagonal_m
     k = ray_points(len(ids))
     pts = sub_points(mesh, facets, ids, np.full(len(ids), k))
     pts = pts.reshape(len(ids), k, 3) + SURFACE_LIFT * diag * facets.normals[ids, None]
     return RayData(
         points=jnp.asarray(pts, dtype),
         corners=jnp.asarray(np.moveaxis(tris, 1, 0), dtype),
-        tri_normal=jnp.asarray(normal, dtype),
+        tri_normal=jnp.asarray(blockers.normals, dtype),
         depth_margin_m=jnp.asarray(DEPTH_MARGIN * diag, dtype),
-        cull_back=is_watertight(mesh),
+        cull_back=blockers.cull_back,
     )
 
 
