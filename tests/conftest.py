@@ -15,6 +15,16 @@ jax.config.update("jax_numpy_rank_promotion", "raise")
 
 from helpers import MESHES, SCENES  # noqa: E402
 
+from jaxlc.xla import enable_persistent_cache  # noqa: E402
+
+# Compile into jaxlc's persistent cache from the first test, as `jaxlc fit` and
+# `jaxlc generate` do (until one of them ran in-process, every test compiled afresh):
+# ~40 % of a cold suite is XLA compilation (692 of 1,720 s measured), which a second
+# `make test` on the same machine then loads instead; `JAXLC_XLA_CACHE=off` turns it
+# off, `JAXLC_CACHE_DIR` moves it. Results do not depend on it: JAX keys each entry by
+# the computation, the compile options and its own version.
+enable_persistent_cache()
+
 #: Most memory mappings the test process may hold before compiled code is freed.
 #: Each XLA CPU executable holds ~6 mappings while JAX's caches keep it alive, and
 #: the suite compiles ~10⁴ of them in this one process. At the kernel's
