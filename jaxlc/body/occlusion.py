@@ -39,6 +39,7 @@ class Occluders:
 
     def __init__(self, tris: np.ndarray, cull_back: bool):
         t = np.asarray(tris, dtype=np.float64)
+        self.triangles = t  # (M, 3, 3) as given, float64
         self.corners = [np.ascontiguousarray(t[:, k].T, dtype=np.float32) for k in range(3)]
         n = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
         norm = np.linalg.norm(n, axis=1, keepdims=True)

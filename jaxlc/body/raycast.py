@@ -125,6 +125,25 @@ def is_watertight(mesh: TriangleMesh) -> bool:
     return bool(tm.is_watertight)
 
 
+def mesh_occluders(mesh: TriangleMesh, facets: Facets) -> Occluders:
+    """The mesh's triangles (masked ones left out) as ray blockers, back faces culled
+    where the mesh is watertight: what the table's trace and the ray kit
+    (:mod:`jaxlc.body.shadow_rays`) both cast against."""
+    tris = mesh.vertices_m[mesh.faces[facets.triangle_facet >= 0]]
+    return Occluders(tris, cull_back=is_watertight(mesh))
+
+
+def lifted_sub_points(
+    mesh: TriangleMesh, facets: Facets, facet_ids: np.ndarray, counts: np.ndarray
+) -> np.ndarray:
+    """:func:`sub_points`, each lifted :data:`SURFACE_LIFT` × the mesh's diagonal along its
+    facet's normal: where the rays of the table and of the ray kit start (Σ counts, 3)."""
+    counts = np.asarray(counts, dtype=np.int64)
+    owner = np.repeat(np.arange(len(facet_ids)), counts)
+    pts = sub_points(mesh, facets, facet_ids, counts)
+    return pts + SURFACE_LIFT * mesh.diagonal_m * facets.normals[np.asarray(facet_ids)][owner]
+
+
 def trace_visibility(
     mesh: TriangleMesh,
     facets: Facets,
@@ -141,16 +160,14 @@ def trace_visibility(
     bits of their mirror image above it (:func:`_mirror_below_horizon`).
     """
     dirs = octahedral_directions(grid)
-    valid = facets.triangle_facet >= 0
-    blockers = Occluders(mesh.vertices_m[mesh.faces[valid]], cull_back=is_watertight(mesh))
+    blockers = mesh_occluders(mesh, facets)
     diag = mesh.diagonal_m
     normals = facets.normals[facet_ids]
     counts = np.asarray(counts, dtype=np.int64)
     start, n_words = word_layout(counts)
     owner = np.repeat(np.arange(len(facet_ids)), counts)  # facet row of each sub-point
     bit = np.arange(len(owner)) + np.repeat(start - (np.cumsum(counts) - counts), counts)
-    pts = sub_points(mesh, facets, facet_ids, counts)
-    pts += SURFACE_LIFT * diag * normals[owner]  # lift off the surface
+    pts = lifted_sub_points(mesh, facets, facet_ids, counts)
     pts_t = np.ascontiguousarray(pts.T, dtype=np.float32)
     del pts
 

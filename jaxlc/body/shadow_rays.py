@@ -28,8 +28,8 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from jaxlc.body.mesh import Facets, TriangleMesh
-from jaxlc.body.occlusion import Occluders, hits, plane_basis
-from jaxlc.body.raycast import DEPTH_MARGIN, SURFACE_LIFT, is_watertight, sub_points
+from jaxlc.body.occlusion import hits, plane_basis
+from jaxlc.body.raycast import DEPTH_MARGIN, lifted_sub_points, mesh_occluders
 
 #: Sub-points per facet whose rays are cast (fewer on a large mesh: :func:`ray_points`).
 RAY_POINTS = 512
@@ -71,17 +71,14 @@ def ray_data(
     """The ray kit of facets ``facet_ids`` (host, once per mesh): their
     :func:`ray_points` sub-points each, placed and lifted as the shadow table's are."""
     ids = np.asarray(facet_ids, np.int64)
-    tris = mesh.vertices_m[mesh.faces[facets.triangle_facet >= 0]]
-    blockers = Occluders(tris, cull_back=is_watertight(mesh))  # as the table's trace
-    diag = mesh.diagonal_m
+    blockers = mesh_occluders(mesh, facets)  # as the table's trace
     k = ray_points(len(ids))
-    pts = sub_points(mesh, facets, ids, np.full(len(ids), k))
-    pts = pts.reshape(len(ids), k, 3) + SURFACE_LIFT * diag * facets.normals[ids, None]
+    pts = lifted_sub_points(mesh, facets, ids, np.full(len(ids), k)).reshape(len(ids), k, 3)
     return RayData(
         points=jnp.asarray(pts, dtype),
-        corners=jnp.asarray(np.moveaxis(tris, 1, 0), dtype),
+        corners=jnp.asarray(np.moveaxis(blockers.triangles, 1, 0), dtype),
         tri_normal=jnp.asarray(blockers.normals, dtype),
-        depth_margin_m=jnp.asarray(DEPTH_MARGIN * diag, dtype),
+        depth_margin_m=jnp.asarray(DEPTH_MARGIN * mesh.diagonal_m, dtype),
         cull_back=blockers.cull_back,
     )
 
