@@ -12,7 +12,14 @@ kernel's calls (waited for) and the rest, the host work. Run it on one core
 (``taskset -c 0``) for what one of two pinned workers spends: the kernel's share
 bounds the rate that any host-side work could reach.
 
+``--shadow-stages`` times the stages of S4's shadowed kernel over one 1,800-instant
+curve (blur off): the plain facet sum, the table's corner rows gathered alone, the
+look-up pass (:func:`~jaxlc.body.shadow_lookup.lit_seen_columns`, its columns kept)
+and the whole shadowed kernel, each jitted apart (the stages do not add up exactly:
+XLA fuses each call on its own).
+
     python experiments/profile_shard.py [--warm 2] [--shards 4] [--profile] [--by-class]
+    taskset -c 0 python experiments/profile_shard.py --shadow-stages
 """
 
 from __future__ import annotations
@@ -46,7 +53,10 @@ def main(argv=None) -> float:
     parser.add_argument("--profile", action="store_true", help="cProfile the timed shards")
     parser.add_argument("--top", type=int, default=40, help="functions listed per order")
     parser.add_argument("--by-class", action="store_true", help="each class alone: kernel/host")
+    parser.add_argument("--shadow-stages", action="store_true", help="S4's shadowed kernel")
     args = parser.parse_args(argv)
+    if args.shadow_stages:
+        return shadow_stages()
     config = load_config(CONFIG)
     if args.by_class:
         return by_class(config, args.warm, args.shards)
@@ -116,6 +126,65 @@ def by_class(config, warm: int, shards: int) -> float:
         f"core ({2 * bound:.0f} on two pinned workers, {os.cpu_count()} cores here)"
     )
     return bound
+
+
+def shadow_stages(chunk: int = 120) -> float:
+    """Milliseconds of S4's stages over one curve (module docstring); returns the whole's."""
+    import functools as ft
+
+    import jax.numpy as jnp
+    import numpy as np
+
+    import jaxlc
+    from jaxlc.body.octahedral import grid_corners
+    from jaxlc.body.shadow_lookup import lit_seen_columns
+    from jaxlc.rendering.kernel import exposure_intensity
+    from jaxlc.xla import jit
+
+    sys.path.insert(0, str(HERE))
+    from bench_render import PLAIN, pass_geometry
+
+    geo = pass_geometry(1800)
+    shadowed = jaxlc.prepare("s4_falcon9", geo, jaxlc.RenderOptions(blur="off"))
+    plain = jaxlc.prepare("s4_falcon9", geo, PLAIN)
+    obj, inputs, table = shadowed.object, shadowed.inputs, shadowed.object.shadow
+    r = np.asarray(obj.attitude.rotation(inputs.times))
+    sun_b = jnp.asarray(np.einsum("tji,tj->ti", r, np.asarray(inputs.sun_dir)), jnp.float32)
+    obs_b = jnp.asarray(np.einsum("tji,tj->ti", r, np.asarray(inputs.obs_dir)), jnp.float32)
+    n = len(sun_b) - len(sun_b) % chunk
+    blocks = lambda x: x[:n].reshape(-1, chunk, 3)  # noqa: E731
+
+    def gathered(a):  # the six corner rows of each instant, gathered and folded
+        rows = []
+        for d in a:
+            idx, _ = grid_corners(d, table.grid, table.interpolation)
+            rows += [table.bits[idx[:, k]] for k in range(idx.shape[1])]
+        return ft.reduce(jnp.bitwise_xor, rows)
+
+    columns = ft.partial(lit_seen_columns, table)
+    stages = {
+        "plain facet sum": (jit(exposure_intensity), (plain.object, plain.inputs)),
+        "corner rows gathered": (
+            jit(lambda s, v: jax.lax.map(gathered, (blocks(s), blocks(v)))),
+            (sun_b, obs_b),
+        ),
+        "look-up pass": (
+            jit(lambda s, v: jax.lax.map(lambda a: columns(*a), (blocks(s), blocks(v)))),
+            (sun_b, obs_b),
+        ),
+        "shadowed kernel": (jit(exposure_intensity), (obj, inputs)),
+    }
+    out = {}
+    for name, (fn, args) in stages.items():
+        jax.block_until_ready(fn(*args))
+        times = []
+        for _ in range(30):
+            start = time.perf_counter()
+            jax.block_until_ready(fn(*args))
+            times.append(time.perf_counter() - start)
+        out[name] = 1e3 * float(np.median(times))
+        print(f"{name}: {out[name]:.2f} ms ({table.bits.shape[1]} words a row, {n} instants)")
+    return out["shadowed kernel"]
 
 
 if __name__ == "__main__":
