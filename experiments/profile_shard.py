@@ -15,8 +15,8 @@ bounds the rate that any host-side work could reach.
 ``--shadow-stages`` times the stages of S4's shadowed kernel over one 1,800-instant
 curve (blur off): the plain facet sum, the table's corner rows gathered alone, the
 look-up pass (:func:`~jaxlc.body.shadow_lookup.lit_seen_columns`, its columns kept)
-and the whole shadowed kernel, each jitted apart (the stages do not add up exactly:
-XLA fuses each call on its own).
+and the whole shadowed kernel, each jitted apart and timed in alternation (median ±
+IQR; the stages do not add up exactly: XLA fuses each call on its own).
 
     python experiments/profile_shard.py [--warm 2] [--shards 4] [--profile] [--by-class]
     taskset -c 0 python experiments/profile_shard.py --shadow-stages
@@ -143,14 +143,17 @@ def shadow_stages(chunk: int = 120) -> float:
 
     sys.path.insert(0, str(HERE))
     from bench_render import PLAIN, pass_geometry
+    from timing import timed_interleaved
 
     geo = pass_geometry(1800)
     shadowed = jaxlc.prepare("s4_falcon9", geo, jaxlc.RenderOptions(blur="off"))
     plain = jaxlc.prepare("s4_falcon9", geo, PLAIN)
     obj, inputs, table = shadowed.object, shadowed.inputs, shadowed.object.shadow
-    r = np.asarray(obj.attitude.rotation(inputs.times))
-    sun_b = jnp.asarray(np.einsum("tji,tj->ti", r, np.asarray(inputs.sun_dir)), jnp.float32)
-    obs_b = jnp.asarray(np.einsum("tji,tj->ti", r, np.asarray(inputs.obs_dir)), jnp.float32)
+    r = np.asarray(obj.attitude.rotation(inputs.times))  # body → inertial; Rᵀ x below
+    sun_b, obs_b = (
+        jnp.asarray(np.einsum("tji,tj->ti", r, np.asarray(x)), jnp.float32)
+        for x in (inputs.sun_dir, inputs.obs_dir)
+    )
     n = len(sun_b) - len(sun_b) % chunk
     blocks = lambda x: x[:n].reshape(-1, chunk, 3)  # noqa: E731
 
@@ -174,17 +177,13 @@ def shadow_stages(chunk: int = 120) -> float:
         ),
         "shadowed kernel": (jit(exposure_intensity), (obj, inputs)),
     }
-    out = {}
-    for name, (fn, args) in stages.items():
-        jax.block_until_ready(fn(*args))
-        times = []
-        for _ in range(30):
-            start = time.perf_counter()
-            jax.block_until_ready(fn(*args))
-            times.append(time.perf_counter() - start)
-        out[name] = 1e3 * float(np.median(times))
-        print(f"{name}: {out[name]:.2f} ms ({table.bits.shape[1]} words a row, {n} instants)")
-    return out["shadowed kernel"]
+    timings = timed_interleaved({k: ft.partial(fn, *a) for k, (fn, a) in stages.items()})
+    for name, (median_s, iqr_s, _) in timings.items():
+        print(
+            f"{name}: {1e3 * median_s:.2f} ± {1e3 * iqr_s:.2f} ms "
+            f"({table.bits.shape[1]} words a row, {n} instants)"
+        )
+    return 1e3 * timings["shadowed kernel"][0]
 
 
 if __name__ == "__main__":
