@@ -131,15 +131,16 @@ class TorqueFreeMotion(eqx.Module):
         moments, w = self.moments_kg_m2, self.omega_rad_s
         return alignment(moments, w, self.cn0, self.sn0, self.ratio) @ self.frame
 
-    def state(self, r_s, extra_rad) -> tuple[Float[Array, "3 3"], Float[Array, " 3"]]:
-        """The body → L-frame rotation and the body-frame ω at one instant.
+    def state(self, r_s, extra_rad) -> tuple[Float[Array, ""], Float[Array, "3 3"], Array]:
+        """The motion at one instant, as ψ, M(t) · P and ω: the body → L-frame rotation
+        is R_z(ψ) · M(t) · P.
 
         Args:
             r_s: seconds from the time origin, less the whole periods ``period_s``.
             extra_rad: ψ accumulated over those whole periods.
 
         Returns:
-            (R_z(ψ) · M(t) · P (3, 3), ω (3,) in the body frame, rad/s).
+            (ψ (rad), M(t) · P (3, 3), ω (3,) in the body frame, rad/s).
         """
         u = self.nu_rad_s * r_s + self.u0
         sn, cn, dn = jacobi_sn_cn_dn(u, self.m, self.m1)
@@ -151,8 +152,7 @@ class TorqueFreeMotion(eqx.Module):
             + self.coefficient_rad * (self.h(u, (sn, cn, dn)) - self.h0)
             + extra_rad
         )
-        rotation = matmul3(matmul3(rotation_z(psi), align), self.frame)
-        return rotation, jnp.sum(self.frame * w[:, None], axis=0)
+        return psi, matmul3(align, self.frame), jnp.sum(self.frame * w[:, None], axis=0)
 
 
 def alignment(moments, w, cn, sn, ratio) -> Float[Array, "3 3"]:
@@ -181,6 +181,24 @@ def rotation_z(angle) -> Float[Array, "3 3"]:
     """Right-handed rotation by ``angle`` (rad) about z."""
     c, s, z, o = jnp.cos(angle), jnp.sin(angle), jnp.zeros_like(angle), jnp.ones_like(angle)
     return jnp.stack([jnp.stack([c, -s, z]), jnp.stack([s, c, z]), jnp.stack([z, z, o])])
+
+
+def turn_z(angle, n) -> Float[Array, "... 3 3"]:
+    """R_z(angle) · n for (...,) angles (rad) and (..., 3, 3) matrices: rows mixed
+    elementwise (no batched matrix product)."""
+    c, s = jnp.cos(angle)[..., None], jnp.sin(angle)[..., None]
+    n0, n1, n2 = n[..., 0, :], n[..., 1, :], n[..., 2, :]
+    return jnp.stack([c * n0 - s * n1, s * n0 + c * n1, jnp.broadcast_to(n2, (c * n0).shape)], -2)
+
+
+def frame_about(axis) -> Float[Array, "3 3"]:
+    """A rotation B whose third column is the unit vector ``axis`` (3,): a rotation by
+    an angle about ``axis`` is B · R_z(angle) · Bᵀ (whichever B)."""
+    pick = jnp.abs(axis[0]) < 0.6  # a helper at least 53° from the axis
+    helper = jnp.where(pick, jnp.eye(3, dtype=axis.dtype)[0], jnp.eye(3, dtype=axis.dtype)[1])
+    b1 = helper - jnp.dot(helper, axis) * axis
+    b1 = b1 / jnp.linalg.norm(b1)
+    return jnp.stack([b1, jnp.cross(axis, b1), axis], axis=1)
 
 
 def axis_angle_matrix(axis, angle) -> Float[Array, "3 3"]:

@@ -44,10 +44,11 @@ from jaxlc.body.attitude import (
 )
 from jaxlc.body.free_body import (
     TorqueFreeMotion,
-    axis_angle_matrix,
+    frame_about,
     host_motion,
     matmul3,
     torque_free_motion,
+    turn_z,
 )
 
 
@@ -139,18 +140,24 @@ class Tumble(AbstractAttitude):
         return t - n * period, n * step
 
     def _evaluate(self, times):
-        """(T, 3, 3) rotations and (T, 3) body-frame ω at ``times``."""
+        """(T, 3, 3) rotations and (T, 3) body-frame ω at ``times``.
+
+        Both motions are R = G · R_z(ψ) · N: a tumble G = R_L, N = M(t) · P
+        (:meth:`TorqueFreeMotion.state`); a uniform rotation by ψ about ω̂,
+        G = q₀ · B, N = Bᵀ (B ẑ = ω̂). The choice is made on these factors, before
+        the one product.
+        """
         motion = self.motion()
         r, extra = self._split(motion, times)
         q0 = quaternion_to_matrix(self.quaternion)
-        r_l = q0 @ motion.initial_alignment().T  # R_L: the attitude at t = 0 is q₀
-        tumbling, omega = jax.vmap(motion.state)(r, extra)
-        uniform = jax.vmap(lambda a: axis_angle_matrix(motion.axis, a))(
-            motion.rate_rad_s * r + extra
-        )
-        rot = jnp.where(motion.uniform, matmul3(q0[None], uniform), matmul3(r_l[None], tumbling))
-        omega = jnp.where(motion.uniform, self.omega_body_rad_s[None], omega)
-        return rot, omega
+        psi, n, omega = jax.vmap(motion.state)(r, extra)
+        uniform = motion.uniform
+        b = frame_about(motion.axis)
+        g = jnp.where(uniform, q0 @ b, q0 @ motion.initial_alignment().T)
+        psi = jnp.where(uniform, motion.rate_rad_s * r + extra, psi)
+        n = jnp.where(uniform, b.T[None], n)
+        omega = jnp.where(uniform, self.omega_body_rad_s[None], omega)
+        return matmul3(g[None], turn_z(psi, n)), omega
 
     def rotation(self, times) -> Float[Array, "T 3 3"]:
         """(T, 3, 3) body → inertial matrices at ``times`` (:meth:`times`, or seconds)."""
