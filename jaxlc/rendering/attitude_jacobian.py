@@ -13,8 +13,11 @@ facets) and cheap. :func:`attitude_intensity` carries this as the custom JVP of 
 kernel entry, so ``jax.jacfwd`` / ``jax.linearize`` of a fit model push three tangents
 through the facet sum instead of P (spin 6, tumble 10). Fused forward mode shares much
 of its work between tangents, so the gain is less than the count: S4's exact spin
-model (1,205 facets, shadows) 15–25 % faster per Jacobian; the search's coarse model
-(154 facets, 32 starts vmapped) 15 % slower, so it keeps plain forward mode.
+model (1,205 facets, shadows) 15–25 % faster per Jacobian, the spin searches' coarse
+models 17–27 % (:class:`~jaxlc.inference.model.SpinModel`). :func:`body_turns` forms
+Ω one tangent at a time without the (T, 3, 3, P) Jacobian of the rotations, which
+XLA contracted slowly: S5's refinement Jacobian (6 starts × 38,400 instants) fell
+from 521 to 152 ms with it and the tangent sum written out.
 The values are those of the plain chain rule up to float rounding
 (``tests/test_attitude_jacobian.py``).
 """
@@ -69,15 +72,22 @@ def body_turns(
     attitude_of: Callable[[Array], AbstractAttitude], theta: Array, times
 ) -> Float[Array, "T 3 P"]:
     """Ω_k = vee(R_kᵀ ∂R_k/∂θ) (T, 3, P): the body-frame turn per unit change of each
-    coordinate of ``theta`` (P,) at each instant."""
+    coordinate of ``theta`` (P,) at each instant.
+
+    One tangent at a time (vmapped), each reduced at once to the three entries of
+    Rᵀ dR that vee reads, written out as sums of three products: forming the whole
+    (T, 3, 3, P) Jacobian and contracting it cost S5's refinement model 10× its
+    facet sum (a library reduction over a transposed copy)."""
 
     def rot(th):
-        r = attitude_of(th).rotation(times)
-        return r, r
+        return attitude_of(th).rotation(times)
 
-    dr, r = jax.jacfwd(rot, has_aux=True)(theta)  # (T, 3, 3, P), (T, 3, 3)
-    a = jnp.sum(r[:, :, :, None, None] * dr[:, :, None, :, :], axis=1)  # Rᵀ dR (T, 3, 3, P)
-    return jnp.stack([a[:, 2, 1], a[:, 0, 2], a[:, 1, 0]], axis=1)
+    def turn(v):
+        r, dr = jax.jvp(rot, (theta,), (v,))  # (T, 3, 3) each; r unbatched under vmap
+        entry = lambda i, j: sum(r[:, k, i] * dr[:, k, j] for k in range(3))  # noqa: E731
+        return jnp.stack([entry(2, 1), entry(0, 2), entry(1, 0)], axis=1)  # (T, 3)
+
+    return jax.vmap(turn, out_axes=2)(jnp.eye(theta.shape[0], dtype=theta.dtype))
 
 
 def intensity_and_jacobian(
@@ -98,7 +108,7 @@ def intensity_and_jacobian(
         return i, i
 
     g, i = jax.jacfwd(per_instant, has_aux=True)(jnp.zeros(3, inputs.sun_dir.dtype))
-    di = jnp.sum(g[:, :, None] * omega, axis=1)  # (T, P)
+    di = sum(g[:, k, None] * omega[:, k, :] for k in range(3))  # (T, P); no reduce op
     return exposure_mean(i, inputs), exposure_mean(di, inputs)
 
 
