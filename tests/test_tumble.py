@@ -263,6 +263,61 @@ def test_nearly_principal_spin_tends_to_the_spin_model(axis):
     assert rotation_angle_rad(r, r_spin).max() < 1e-8  # measured 1e-9
 
 
+@pytest.mark.parametrize(
+    "axis", [(1, 0, 0), (-1, 0, 0), (0, 0, -1), (0.6, 0.8, 0), (0.59, -0.2, 0.78), (0.3, 0.4, 0.5)]
+)
+def test_uniform_factor_frame_is_a_rotation_about_the_axis(axis):
+    """A uniform rotation is written B · R_z(ψ) · Bᵀ: B must be a proper rotation whose
+    third column is the axis, on both sides of its helper's switch (|x| = 0.6)."""
+    from jaxlc.body.free_body import frame_about
+
+    a = np.asarray(axis, np.float64) / np.linalg.norm(axis)
+    with jax.enable_x64(True):
+        b = np.asarray(frame_about(jnp.asarray(a)))
+    np.testing.assert_allclose(b.T @ b, np.eye(3), atol=1e-14)
+    assert np.linalg.det(b) == pytest.approx(1.0, abs=1e-14)
+    np.testing.assert_allclose(b[:, 2], a, atol=1e-15)
+
+
+_directional = jax.jit(
+    lambda state, tangent, t: jax.jvp(
+        lambda i, w, q: jnp.sum(Tumble(i, w, q).rotation(t) * jnp.arange(9.0).reshape(1, 3, 3)),
+        state,
+        tangent,
+    )
+)
+
+
+@pytest.mark.parametrize(
+    ("axis", "inertia"),
+    [((0, 0, 1), (1.0, 2.5, 3.0)), ((0.6, 0.8, 0), (2.0, 2.0, 3.0)), ((0.3, 0.4, 0.5), (2.0,) * 3)],
+)
+def test_uniform_rotation_derivatives_match_finite_differences(axis, inertia):
+    """Along changes that keep the motion a uniform rotation (|ω| along its axis, the
+    quaternion, and for a sphere any ω) the derivative of the rotations is the rigid
+    rotation's: autodiff through B · R_z(ψ) · Bᵀ matches central differences."""
+    w0 = 2 * math.pi / 82.6 * np.asarray(axis, np.float64) / np.linalg.norm(axis)
+    state = (np.asarray(inertia, np.float64), w0, Q0)
+    directions = [(1, w0 / np.linalg.norm(w0))] + [(2, e) for e in np.eye(4)]
+    if len(set(inertia)) == 1:
+        directions += [(1, e) for e in np.eye(3)]
+    with jax.enable_x64(True):
+        t = jnp.asarray(T_S[:40])
+        zero = tuple(jnp.zeros_like(jnp.asarray(x)) for x in state)
+        for k, d in directions:
+            h = 1e-6 * np.max(np.abs(state[k]))
+            tangent = list(zero)
+            tangent[k] = jnp.asarray(d)
+            got = _directional(tuple(map(jnp.asarray, state)), tuple(tangent), t)[1]
+            plus, minus = list(state), list(state)
+            plus[k], minus[k] = state[k] + h * d, state[k] - h * d
+            fd = (
+                _directional(tuple(map(jnp.asarray, plus)), zero, t)[0]
+                - _directional(tuple(map(jnp.asarray, minus)), zero, t)[0]
+            ) / (2 * h)
+            assert float(got) == pytest.approx(float(fd), rel=1e-6, abs=1e-6), (k, d)
+
+
 # ---------------------------------------------------------------------------
 # Precision, derivatives, batching
 
