@@ -32,10 +32,22 @@ from jaxtyping import Array, Float
 #: AGM steps of :func:`jacobi_sn_cn_dn`: c_n falls quadratically once a_n ≈ b_n;
 #: 12 steps reach c_n/a_n < 1e-30 for m₁ ≥ 1e-30.
 AGM_STEPS = 12
+#: … in float32, where m₁ ≥ 1e-6 (the separatrix guard of :mod:`jaxlc.body.free_body`):
+#: 5 steps already give scipy's sn, cn, dn to float32 rounding, 4 do not (0.012).
+AGM_STEPS_FLOAT32 = 6
 #: Duplication steps of the Carlson integrals: each divides the spread of the
 #: arguments by 4, and the series left after 12 steps is exact to float64 for
 #: spreads of up to ~1e4 (x = 0 with m₁ ≥ 1e-30 included).
 DUPLICATION_STEPS = 12
+#: … in float32: the series' error falls as (spread / 4ᵏ)⁶, so 1e-7 instead of 1e-16
+#: needs 2.5 steps fewer for the same spreads; 9 steps kept R_J within 4e-7 of scipy's
+#: for p up to 1e3, 8 did not (1e-4).
+DUPLICATION_STEPS_FLOAT32 = 10
+
+
+def _steps(float64_steps: int, float32_steps: int, dtype) -> int:
+    """A loop's step count for ``dtype`` (float32's own, else float64's)."""
+    return float32_steps if jnp.dtype(dtype) == jnp.float32 else float64_steps
 
 
 def jacobi_sn_cn_dn(u, m, m1) -> tuple[Float[Array, "..."], ...]:
@@ -63,12 +75,13 @@ def jacobi_sn_cn_dn(u, m, m1) -> tuple[Float[Array, "..."], ...]:
         # c_{n+1} = c_n² / (4 a_{n+1}), a_{n+1} = (a_n + b_n)/2
         return (a, b, c * c / (2.0 * (a + b))), c / a
 
-    (a, _, _), ratios = jax.lax.scan(mean, (jnp.ones_like(b0), b0, c1), None, AGM_STEPS)
+    steps = _steps(AGM_STEPS, AGM_STEPS_FLOAT32, b0.dtype)
+    (a, _, _), ratios = jax.lax.scan(mean, (jnp.ones_like(b0), b0, c1), None, steps)
 
     def descend(phi, ratio):
         return 0.5 * (phi + jnp.arcsin(ratio * jnp.sin(phi))), None
 
-    phi, _ = jax.lax.scan(descend, (2.0**AGM_STEPS) * a * u, ratios, reverse=True)
+    phi, _ = jax.lax.scan(descend, (2.0**steps) * a * u, ratios, reverse=True)
     sn, cn = jnp.sin(phi), jnp.cos(phi)
     return sn, cn, jnp.sqrt(m1 + m * cn * cn)  # dn² = 1 − m sn² = m₁ + m cn², no cancellation
 
@@ -97,9 +110,8 @@ def carlson_rf_from_roots(sx, sy, sz) -> Float[Array, "..."]:
     """R_F(x, y, z) given √x, √y, √z (≥ 0, at most one zero); elementwise, broadcast."""
     roots = jnp.broadcast_arrays(*map(jnp.asarray, (sx, sy, sz)))
     xyz = tuple(r * r for r in roots)
-    _, (x, y, z) = jax.lax.fori_loop(
-        0, DUPLICATION_STEPS, lambda _, c: _duplicate(*c), (tuple(roots), xyz)
-    )
+    steps = _steps(DUPLICATION_STEPS, DUPLICATION_STEPS_FLOAT32, xyz[0].dtype)
+    _, (x, y, z) = jax.lax.fori_loop(0, steps, lambda _, c: _duplicate(*c), (tuple(roots), xyz))
     a = (x + y + z) / 3.0
     dx, dy = 1.0 - x / a, 1.0 - y / a
     dz = -(dx + dy)
@@ -122,7 +134,8 @@ def carlson_rj_from_roots(sx, sy, sz, p) -> Float[Array, "..."]:
         return (*_duplicate(roots, args), total)
 
     carry = ((sx, sy, sz), (x, y, z, p), jnp.zeros_like(p))
-    _, (x, y, z, p), total = jax.lax.fori_loop(0, DUPLICATION_STEPS, step, carry)
+    steps = _steps(DUPLICATION_STEPS, DUPLICATION_STEPS_FLOAT32, p.dtype)
+    _, (x, y, z, p), total = jax.lax.fori_loop(0, steps, step, carry)
     a = (x + y + z + 2.0 * p) / 5.0
     dx, dy, dz = 1.0 - x / a, 1.0 - y / a, 1.0 - z / a
     dp = -0.5 * (dx + dy + dz)
@@ -139,7 +152,7 @@ def carlson_rj_from_roots(sx, sy, sz, p) -> Float[Array, "..."]:
         - 9.0 * e2 * e3 / 52.0
         + 3.0 * e5 / 26.0
     )
-    return 0.25**DUPLICATION_STEPS * series / (a * jnp.sqrt(a)) + 6.0 * total
+    return 0.25**steps * series / (a * jnp.sqrt(a)) + 6.0 * total
 
 
 def carlson_rf(x, y, z) -> Float[Array, "..."]:
