@@ -177,12 +177,6 @@ def matmul3(a, b) -> Float[Array, "... 3 3"]:
     return sum(a[..., :, k : k + 1] * b[..., k : k + 1, :] for k in range(3))
 
 
-def rotation_z(angle) -> Float[Array, "3 3"]:
-    """Right-handed rotation by ``angle`` (rad) about z."""
-    c, s, z, o = jnp.cos(angle), jnp.sin(angle), jnp.zeros_like(angle), jnp.ones_like(angle)
-    return jnp.stack([jnp.stack([c, -s, z]), jnp.stack([s, c, z]), jnp.stack([z, z, o])])
-
-
 def turn_z(angle, n) -> Float[Array, "... 3 3"]:
     """R_z(angle) · n for (...,) angles (rad) and (..., 3, 3) matrices: rows mixed
     elementwise (no batched matrix product)."""

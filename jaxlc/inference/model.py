@@ -137,7 +137,8 @@ class SpinModel(FitModel):
     Every model differentiates through body turns
     (:func:`~jaxlc.rendering.attitude_jacobian.attitude_intensity`): three tangents
     through the facet sum instead of six. The 1,024-start searches of a 10-minute
-    pass ran 27 % (S4, S6) and 17 % (S5) faster so than in plain forward mode.
+    pass ran 27 % (S4, S6) and 17 % (S5) faster than in plain forward mode (S4: 7.6
+    vs 10.7 s; compiling 3.4 vs 3.1 s).
     """
 
     period_ref_s: jax.Array
