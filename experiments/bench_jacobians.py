@@ -1,10 +1,11 @@
-"""Time the fits' forward models and their Jacobians, compiled as the fits compile them.
+"""Time the fits' forward models and their Jacobians, compiled as the fits compile them
+(:func:`jaxlc.xla.filter_jit`, the solvers' decorator).
 
 Rows (median ± IQR of alternating calls, ``experiments/timing.timed_interleaved``):
 
 * ``tumble rotations``: :meth:`jaxlc.body.tumble.Tumble.rotation` of 32 tumbles
   (the search's block) at 496 instants, and its ``jacfwd`` in the fit's 10 coordinates
-  (:class:`~jaxlc.inference.tumble_model.TumbleModel` ``attitude``);
+  (the attitude map of a :class:`~jaxlc.inference.tumble_model.TumbleModel`);
 * ``s5 refinement model``: the exact S5 spin model of a 600-sample pass at the
   shortest candidate period (64 sub-exposures: 38,400 instants, 8 facets), 6 starts
   (the refinement's block): its magnitudes and their Jacobian (through body turns).
@@ -37,20 +38,21 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from timing import timed_interleaved  # noqa: E402
 
 import jaxlc  # noqa: E402
-from jaxlc.body.tumble import Tumble  # noqa: E402
+from jaxlc.inference import tumble_model as tm  # noqa: E402
 from jaxlc.inference.data import fit_data  # noqa: E402
 from jaxlc.inference.model import spin_model, truth_theta  # noqa: E402
-from jaxlc.inference.tumble_model import bounded_ratios, moments_from_ratios  # noqa: E402
-from jaxlc.xla import compiler_options  # noqa: E402
+from jaxlc.xla import filter_jit  # noqa: E402
 
 OUT = Path(__file__).resolve().parent / "results" / "bench_jacobians.csv"
 
 
-def compiled(fn):
-    return jax.jit(fn, compiler_options=compiler_options())
-
-
 def tumble_rows() -> list[dict]:
+    """The tumble fit's attitude map (:meth:`TumbleModel.attitude`) of a shipped tumbling
+    scene's search model, at 32 random coordinates."""
+    scene = jaxlc.load_scene("falcon9_tumble")
+    geo = jaxlc.synthetic_geometry(duration_s=120.0, phase_start_deg=30, phase_end_deg=60)
+    data = fit_data(jaxlc.render(scene, geo), geo, default_exposure_s=scene.exposure_s)
+    model = tm.tumble_model(scene, data, tm.truth_theta(scene, data, 0.05), 0.05, exact=False)
     rng = np.random.default_rng(0)
     starts, instants = 32, 496
     theta = np.concatenate(
@@ -61,12 +63,11 @@ def tumble_rows() -> list[dict]:
     t = jnp.asarray(np.linspace(0.0, 600.0, instants), jnp.float32)
 
     def rotation(th):
-        q = th[5:9] / jnp.linalg.norm(th[5:9])
-        return Tumble(moments_from_ratios(bounded_ratios(th[0:2])), th[2:5] * 0.05, q).rotation(t)
+        return model.attitude(th).rotation(t)
 
     fns = {
-        "value": compiled(jax.vmap(rotation)),
-        "jacobian": compiled(jax.vmap(jax.jacfwd(rotation))),
+        "value": filter_jit(lambda th: jax.vmap(rotation)(th)),
+        "jacobian": filter_jit(lambda th: jax.vmap(jax.jacfwd(rotation))(th)),
     }
     got = timed_interleaved({k: (lambda f=f: f(theta)) for k, f in fns.items()})
     size = f"{starts} tumbles × {instants} instants"
@@ -82,8 +83,8 @@ def s5_rows() -> list[dict]:
     starts = 6
     thetas = model.to_device(truth[None] + 0.01 * np.random.default_rng(0).normal(size=(starts, 6)))
     fns = {
-        "value": compiled(jax.vmap(model.magnitudes)),
-        "jacobian": compiled(jax.vmap(jax.jacfwd(model.magnitudes))),
+        "value": filter_jit(lambda th: jax.vmap(model.magnitudes)(th)),
+        "jacobian": filter_jit(lambda th: jax.vmap(jax.jacfwd(model.magnitudes))(th)),
     }
     got = timed_interleaved({k: (lambda f=f: f(thetas)) for k, f in fns.items()})
     size = f"{starts} starts × {len(model.inputs.weight)} instants × {model.obj.n_facets} facets"

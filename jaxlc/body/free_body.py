@@ -131,7 +131,9 @@ class TorqueFreeMotion(eqx.Module):
         moments, w = self.moments_kg_m2, self.omega_rad_s
         return alignment(moments, w, self.cn0, self.sn0, self.ratio) @ self.frame
 
-    def state(self, r_s, extra_rad) -> tuple[Float[Array, ""], Float[Array, "3 3"], Array]:
+    def state(
+        self, r_s, extra_rad
+    ) -> tuple[Float[Array, ""], Float[Array, "3 3"], Float[Array, " 3"]]:
         """The motion at one instant, as ψ, M(t) · P and ω: the body → L-frame rotation
         is R_z(ψ) · M(t) · P.
 

@@ -16,9 +16,9 @@ of its work between tangents, so the gain is less than the count: S4's exact spi
 model (1,205 facets, shadows) 15–25 % faster per Jacobian, the spin searches' coarse
 models 17–27 % (:class:`~jaxlc.inference.model.SpinModel`). :func:`body_turns` forms
 Ω one tangent at a time without the (T, 3, 3, P) Jacobian of the rotations, which
-XLA contracted slowly: S5's refinement Jacobian (6 starts × 38,400 instants, the fits'
-compilation options) fell from 434–448 to 97–107 ms with it and the tangent sum
-written out.
+XLA contracted slowly: S5's refinement Jacobian (6 starts × 38,400 instants, one core,
+compiled as the fits compile it) fell from 799 to 145 ms with it and the tangent sum
+written out (``experiments/bench_jacobians.py``).
 The values are those of the plain chain rule up to float rounding
 (``tests/test_attitude_jacobian.py``).
 """
