@@ -222,7 +222,10 @@ def _as_diffuse_shape(mu):
 
 
 def facet_contributions(
-    model: FacetModel, sun_b: Float[Array, "T 3"], obs_b: Float[Array, "T 3"]
+    model: FacetModel,
+    sun_b: Float[Array, "T 3"],
+    obs_b: Float[Array, "T 3"],
+    specular: bool = True,
 ) -> Float[Array, "T F"]:
     """Per-facet terms A ρ (n·s)(n·v) (m² sr⁻¹), zero unless lit and seen.
 
@@ -230,6 +233,9 @@ def facet_contributions(
         model: facets and materials.
         sun_b: (T, 3) unit vectors object→Sun in the body frame.
         obs_b: (T, 3) unit vectors object→observer in the body frame.
+        specular: include the specular lobes (False: the diffuse terms alone, for a
+            caller that sums the lobes of a few candidate facets itself,
+            :mod:`jaxlc.body.lobe_cells`).
 
     Returns:
         (T, F) contributions; their sum over facets is :func:`facet_intensity`.
@@ -246,8 +252,10 @@ def facet_contributions(
     if model.use_as_diffuse:
         k = k + model.kd[None, :] * _as_diffuse_shape(mu0) * _as_diffuse_shape(mu)
     total = mu0 * mu * k if model.use_lambert or model.use_as_diffuse else 0.0
-    if model.use_specular:
+    if model.use_specular and specular:
         total = total + _specular(model, s, v, mu0, mu)
+    if isinstance(total, float):  # no term traced: zeros of the right shape
+        total = jnp.zeros_like(mu0)
     return total
 
 
@@ -256,6 +264,7 @@ def facet_intensity(
     sun_b: Float[Array, "T 3"],
     obs_b: Float[Array, "T 3"],
     weights: Float[Array, "T F"] | None = None,
+    specular: bool = True,
 ) -> Float[Array, " T"]:
     """Radiant intensity per unit irradiance, I/E = Σ_f w_f A ρ (n·s)(n·v), in m² sr⁻¹.
 
@@ -265,6 +274,7 @@ def facet_intensity(
         obs_b: (T, 3) unit vectors object→observer in the body frame.
         weights: optional (T, F) factors per facet and sample, e.g. the lit and
             seen fraction of facets that can be shadowed.
+        specular: include the specular lobes (:func:`facet_contributions`).
 
     Returns:
         (T,) I/E. Multiply by the irradiance and divide by range² for the flux.
@@ -272,7 +282,7 @@ def facet_intensity(
     Finite, with finite gradients, at grazing angles, at phase angles of 0°
     and 180° and for exponents up to 10⁵ in float32.
     """
-    terms = facet_contributions(model, sun_b, obs_b)
+    terms = facet_contributions(model, sun_b, obs_b, specular)
     if weights is not None:
         terms = terms * weights
     return jnp.sum(terms, axis=-1)
@@ -312,8 +322,10 @@ def log1m(delta):
     return e.astype(dtype) * _LN2 + s * series
 
 
-def _specular(model: FacetModel, s, v, mu0, mu):
-    """ks (fa + fb (1−hs)⁵)/hs · (n·h)^z · min(μ0, μ), per (sample, facet)."""
+def half_vectors(s, v):
+    """Half vectors h (T, 3) of unit vectors s, v (T, 3), with 1/(h·s) (T,) and the
+    Schlick factor (1 − h·s)⁵ (T,); at α → 180° (s + v → 0) h is s + v itself (no facet
+    is both lit and seen there) and 1/(h·s) is 0."""
     sv = s + v
     sq = jnp.sum(sv * sv, axis=-1)
     ok = sq > 1e-12  # α → 180°: no facet is both lit and seen
@@ -321,30 +333,55 @@ def _specular(model: FacetModel, s, v, mu0, mu):
     h = sv / norm_safe[:, None]
     inv_hs = jnp.where(ok, 2.0 / norm_safe, 0.0)
     schlick = (1.0 - 0.5 * norm_safe) ** 5
-    fresnel_over_hs = (
-        model.fa[None, :] * inv_hs[:, None] + model.fb[None, :] * (schlick * inv_hs)[:, None]
-    )
+    return h, inv_hs, schlick
 
+
+def lobe_terms(half, normal, coef: dict, mu0, mu, tangents=None):
+    """ks (fa + fb (1−hs)⁵)/hs · (n·h)^z · min(μ0, μ) for facets laid out as (T, X) or
+    (1, X) arrays: all facets (:func:`facet_contributions`) or a few gathered per sample
+    (:mod:`jaxlc.body.lobe_cells`).
+
+    Args:
+        half: :func:`half_vectors` of the samples.
+        normal: the facets' normal components (x, y, z), each broadcastable to (T, X).
+        coef: ``ks, fa, fb, nu, nv`` of the facets, each broadcastable to (T, X).
+        mu0, mu: (T, X) clamped cosines n·s and n·v.
+        tangents: for anisotropic lobes, the components of the tangents u and w
+            (two triples like ``normal``); None for isotropic ones (z = nu).
+    """
+    h, inv_hs, schlick = half
+    fresnel_over_hs = coef["fa"] * inv_hs[:, None] + coef["fb"] * (schlick * inv_hs)[:, None]
     # δ = 1 − n·h = |h − n|²/2 is exact near the lobe's peak (no cancellation),
     # so log(n·h) = log1p(−δ) keeps exponents of 10⁵ accurate in float32.
-    n = model.normals
     diff2 = (
-        (h[:, None, 0] - n[None, :, 0]) ** 2
-        + (h[:, None, 1] - n[None, :, 1]) ** 2
-        + (h[:, None, 2] - n[None, :, 2]) ** 2
+        (h[:, None, 0] - normal[0]) ** 2
+        + (h[:, None, 1] - normal[1]) ** 2
+        + (h[:, None, 2] - normal[2]) ** 2
     )
     delta = jnp.minimum(0.5 * diff2, 0.999999)  # lit facets have n·h > 0, δ < 1
     log_nh = log1m(delta)
-    if model.anisotropic:
+    if tangents is not None:
         # z log(n·h) = (nu hu² + nv hw²) · log(n·h) / (1 − (n·h)²), and
         # 1 − (n·h)² = δ (2 − δ); the ratio tends to −½ as δ → 0.
-        hu = _dot(h, model.tangent_u)
-        hw = _dot(h, model.tangent_w)
+        tu, tw = tangents
+        hu = h[:, None, 0] * tu[0] + h[:, None, 1] * tu[1] + h[:, None, 2] * tu[2]
+        hw = h[:, None, 0] * tw[0] + h[:, None, 1] * tw[1] + h[:, None, 2] * tw[2]
         sin2 = delta * (2.0 - delta)
         small = sin2 < 1e-12
         ratio = jnp.where(small, -0.5, log_nh / jnp.where(small, 1.0, sin2))
-        z_log = (model.nu[None, :] * hu * hu + model.nv[None, :] * hw * hw) * ratio
+        z_log = (coef["nu"] * hu * hu + coef["nv"] * hw * hw) * ratio
     else:
-        z_log = model.nu[None, :] * log_nh
+        z_log = coef["nu"] * log_nh
     lobe = jnp.exp(z_log)
-    return model.ks[None, :] * fresnel_over_hs * lobe * jnp.minimum(mu0, mu)
+    return coef["ks"] * fresnel_over_hs * lobe * jnp.minimum(mu0, mu)
+
+
+def _specular(model: FacetModel, s, v, mu0, mu):
+    """The lobes of every facet, (T, F) (:func:`lobe_terms`)."""
+
+    def row(x):  # (F, 3) → its components as (1, F) rows
+        return tuple(x[None, :, c] for c in range(3))
+
+    coef = {k: getattr(model, k)[None, :] for k in ("ks", "fa", "fb", "nu", "nv")}
+    tangents = (row(model.tangent_u), row(model.tangent_w)) if model.anisotropic else None
+    return lobe_terms(half_vectors(s, v), row(model.normals), coef, mu0, mu, tangents)

@@ -14,7 +14,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float, UInt32
+from jaxtyping import Array, Float, Int, UInt32
 
 from jaxlc.body.octahedral import grid_corners
 from jaxlc.body.shadow import KEEP_TABLES, ShadowData
@@ -104,6 +104,42 @@ def run_fraction(columns: Float[Array, "T V"], run: tuple[int, int, int, int]):
     for j in range(1, words):
         total = total + columns[:, column + j * n_facets : column + (j + 1) * n_facets]
     return total
+
+
+#: Most facets with several columns whose fractions :func:`weights_at` selects one by one.
+SELECTED_FACETS = 16
+
+
+def weights_at(
+    table: ShadowTable, columns: Float[Array, "T V"], idx: Int[Array, "T K"]
+) -> Float[Array, "T K"]:
+    """Lit-and-seen fractions of facets ``idx`` (T, K) at each sample (1 for the facets
+    after the table's, which cannot be shadowed), without a (T, F) array of every facet's:
+    one scalar gather from ``columns`` for the facets with one column, and a select per
+    facet with several (the large ones: few; more than :data:`SELECTED_FACETS` are
+    gathered from their (T, M) fractions instead)."""
+    runs = facet_runs(table)
+    n_t, n_cols = columns.shape
+    single = runs[0][2] if runs and runs[0][3] == 1 else 0  # facets 0 … single − 1
+    end = max((first + n for _, first, n, _ in runs), default=0)
+    rows = jnp.arange(n_t, dtype=idx.dtype)[:, None]
+    out = jnp.ones(idx.shape, columns.dtype)
+    if single:
+        col = jnp.minimum(idx, single - 1)
+        got = columns.reshape(-1).at[rows * n_cols + col].get(mode="promise_in_bounds")
+        out = jnp.where(idx < single, got, out)
+    many = [r for r in runs if r[3] > 1]
+    if sum(r[2] for r in many) > SELECTED_FACETS:
+        fractions = jnp.concatenate([run_fraction(columns, r) for r in many], axis=1)
+        m = fractions.shape[1]
+        slot = jnp.clip(idx - single, 0, m - 1)
+        got = fractions.reshape(-1).at[rows * m + slot].get(mode="promise_in_bounds")
+        return jnp.where((idx >= single) & (idx < end), got, out)
+    for run in many:
+        fraction = run_fraction(columns, run)
+        for j in range(run[2]):
+            out = jnp.where(idx == run[1] + j, fraction[:, j : j + 1], out)
+    return out
 
 
 def column_divisors(groups: tuple[tuple[int, int], ...]) -> np.ndarray:

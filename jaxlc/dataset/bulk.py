@@ -31,6 +31,7 @@ import numpy as np
 
 from jaxlc.body.brdf import BRDFS
 from jaxlc.body.facet_model import pad_models
+from jaxlc.body.lobe_cells import cells_for
 from jaxlc.rendering.kernel import KernelInputs, SpaceObject, exposure_intensity
 from jaxlc.rendering.prepare import Prepared, adapt, probe_inputs
 from jaxlc.xla import jit
@@ -54,9 +55,9 @@ def class_flags(cls) -> dict:
     }
 
 
-def _one(model, attitude, shadow, inputs):
-    table, exact = shadow
-    return exposure_intensity(SpaceObject(model, attitude, table, exact), inputs)
+def _one(model, attitude, shared, inputs):
+    table, exact, lobes = shared
+    return exposure_intensity(SpaceObject(model, attitude, table, exact, lobes), inputs)
 
 
 @functools.cache
@@ -72,9 +73,9 @@ def batch_kernel(sequential: bool):
     """
     if sequential:
 
-        def f(models, attitudes, shadow, inputs):
+        def f(models, attitudes, shared, inputs):
             return jax.lax.map(
-                lambda a: _one(a[0], a[1], shadow, a[2]), (models, attitudes, inputs)
+                lambda a: _one(a[0], a[1], shared, a[2]), (models, attitudes, inputs)
             )
 
     else:
@@ -121,12 +122,17 @@ def batches(n_blocks: int, size: int) -> list[tuple[int, int]]:
 
 
 def stacked_objects(cls, objects) -> tuple:
-    """(models, attitudes, shadow): every curve's padded model and attitude stacked (host
-    arrays), the rows a kernel batch takes, and the class's one shadow table and exact
-    kit ((None, None) without shadows)."""
-    models = _stack(pad_models([o.model for o in objects], class_flags(cls)))
-    shadow = (objects[0].shadow, objects[0].exact)
-    return models, _stack([o.attitude for o in objects]), shadow
+    """(models, attitudes, shared): every curve's padded model and attitude stacked (host
+    arrays), the rows a kernel batch takes, and what the class's curves share: one shadow
+    table, exact kit and specular candidate cells (None each where there are none; one
+    table of cells for every curve's exponents, :func:`~jaxlc.body.lobe_cells.cells_for`)."""
+    padded = pad_models([o.model for o in objects], class_flags(cls))
+    lobes = objects[0].lobes
+    if lobes is not None and any(o.lobes is None or o.lobes.facets is not lobes.facets
+                                 for o in objects):  # fmt: skip
+        lobes = cells_for(padded)
+    shared = (objects[0].shadow, objects[0].exact, lobes)
+    return _stack(padded), _stack([o.attitude for o in objects]), shared
 
 
 def _batch_blocks(x, start: int, real: int, size: int):
@@ -156,8 +162,8 @@ def _evaluate(config, stacked, inputs, relative: bool) -> list[np.ndarray]:
         return out
     first = np.concatenate([[0], np.cumsum(-(-n_inst // t_len))[:-1]])
     # every curve's model and attitude stacked once, its instants cut into blocks once
-    models, attitudes, shadow = stacked
-    kernel = batch_kernel(shadow[0] is not None)
+    models, attitudes, shared = stacked
+    kernel = batch_kernel(shared[0] is not None)
     # padding past a curve's end repeats its last instant, at weight zero
     pad = -n_inst % t_len
     times, sun, obs = _blocks([(i.times, i.sun_dir, i.obs_dir) for i in inputs], pad, t_len)
@@ -183,7 +189,7 @@ def _evaluate(config, stacked, inputs, relative: bool) -> list[np.ndarray]:
             subsamples=None,
         )
         pick = functools.partial(jax.tree_util.tree_map, lambda x: x[j])  # noqa: B023
-        got = kernel(pick(models), pick(attitudes), shadow, batch)
+        got = kernel(pick(models), pick(attitudes), shared, batch)
         got_all[b0 : b0 + real] = np.asarray(got, np.float64)[:real]
     for c in range(len(inputs)):  # a curve's blocks in order: fixed sums
         mine = got_all[first[c] : first[c] + -(-n_inst[c] // t_len)]

@@ -21,12 +21,14 @@ from jaxtyping import Array, Float, Int, PyTree
 
 from jaxlc.body.attitude import AbstractAttitude
 from jaxlc.body.facet_model import FacetModel, facet_intensity, facet_slice, pad_models
+from jaxlc.body.lobe_cells import LobeCells, lobe_intensity, padded_cells
 from jaxlc.body.shadow_lookup import (
     ShadowTable,
     column_fractions,
     facet_runs,
     lit_seen_columns,
     run_fraction,
+    weights_at,
 )
 from jaxlc.errors import JaxlcError
 from jaxlc.rendering.exact_glints import ExactKit, glint_correction
@@ -46,12 +48,15 @@ class SpaceObject(eqx.Module):
             (:mod:`jaxlc.body.shadow_lookup`), or None (no shadow work).
         exact: the facets whose brightest terms get exact shadows
             (:mod:`jaxlc.rendering.exact_glints`), or None (the table alone).
+        lobes: the candidate facets of each half-vector cell, whose specular terms
+            alone are summed (:mod:`jaxlc.body.lobe_cells`), or None (every facet's).
     """
 
     model: FacetModel
     attitude: AbstractAttitude
     shadow: ShadowTable | None = None
     exact: ExactKit | None = None
+    lobes: LobeCells | None = None
 
     @property
     def n_facets(self) -> int:
@@ -103,8 +108,21 @@ def body_intensity(
     Facets that can be shadowed are weighted by their lit-and-seen fraction.
     """
     if obj.shadow is None:
-        return facet_intensity(obj.model, sun_b, obs_b)
+        return facet_sum(obj, sun_b, obs_b)
     return _shadowed_intensity(obj, sun_b, obs_b, lit_seen_columns(obj.shadow, sun_b, obs_b))
+
+
+def facet_sum(obj: SpaceObject, sun_b, obs_b, weights=None, weight_at=None):
+    """Σ over the facets of :func:`~jaxlc.body.facet_model.facet_intensity` with optional
+    (T, F) ``weights``; with :attr:`SpaceObject.lobes`, the specular terms of each sample's
+    candidate facets only (:func:`~jaxlc.body.lobe_cells.lobe_intensity`, their weights
+    from ``weight_at``, else gathered from ``weights``)."""
+    if obj.lobes is None or not obj.model.use_specular:
+        return facet_intensity(obj.model, sun_b, obs_b, weights=weights)
+    if weight_at is None and weights is not None:
+        weight_at = lambda idx: jnp.take_along_axis(weights, idx, axis=1)  # noqa: E731
+    diffuse = facet_intensity(obj.model, sun_b, obs_b, weights=weights, specular=False)
+    return diffuse + lobe_intensity(obj.model, obj.lobes, sun_b, obs_b, weight_at)
 
 
 def _shadowed_intensity(obj: SpaceObject, sun_b, obs_b, columns):
@@ -137,14 +155,18 @@ def _weighted_intensity(obj: SpaceObject, sun_b, obs_b, columns):
     if max((n for _, _, n, _ in runs), default=0) < OWN_SUM_FACETS:
         n_t, n_rest = columns.shape[0], obj.model.n_facets - end
         weights = jnp.concatenate([*parts, jnp.ones((n_t, n_rest), columns.dtype)], axis=1)
-        return facet_intensity(obj.model, sun_b, obs_b, weights=weights)
+        return facet_sum(obj, sun_b, obs_b, weights=weights)
+    lobes = obj.lobes is not None and obj.model.use_specular  # lobes summed apart, below
     total = 0.0
     for (_, first, n_facets, _), weights in zip(runs, parts, strict=True):
         part = facet_slice(obj.model, first, first + n_facets)
-        total = total + facet_intensity(part, sun_b, obs_b, weights=weights)
+        total = total + facet_intensity(part, sun_b, obs_b, weights=weights, specular=not lobes)
     if end < obj.model.n_facets:
         rest = facet_slice(obj.model, end, obj.model.n_facets)
-        total = total + facet_intensity(rest, sun_b, obs_b)
+        total = total + facet_intensity(rest, sun_b, obs_b, specular=not lobes)
+    if lobes:
+        weight_at = lambda idx: weights_at(obj.shadow, columns, idx)  # noqa: E731
+        total = total + lobe_intensity(obj.model, obj.lobes, sun_b, obs_b, weight_at)
     return total
 
 
@@ -194,7 +216,7 @@ def light_curve_intensity(
 
     args = jax.tree_util.tree_map(blocks, (times, sun_dir, obs_dir))
     if obj.shadow is None:
-        out = jax.lax.map(lambda a: facet_intensity(obj.model, *to_body(a)), args)
+        out = jax.lax.map(lambda a: facet_sum(obj, *to_body(a)), args)
         return out.reshape(-1)[:n_t]
 
     # Two passes: in one loop XLA fuses the bit counting into the facet sum,
@@ -263,7 +285,16 @@ def stack_objects(objects: list[SpaceObject]) -> SpaceObject:
                 "stack_objects: shadowed objects must share one mesh (one table layout)"
             )
     models = pad_models([o.model for o in objects])
+    lobes = [o.lobes for o in objects]
+    grids = {c.grid for c in lobes if c is not None}
+    if len(grids) == 1:  # one shape of candidate table; a model without one lists every facet
+        pairs = list(zip(lobes, models, strict=True))
+        k = max(m.n_facets if c is None else c.facets.shape[1] for c, m in pairs)
+        lobes = [padded_cells(c, m.n_facets, k, *grids) for c, m in pairs]
+    else:  # none, or tables of different grids: every object's full sum
+        lobes = [None] * len(objects)
     padded = [
-        SpaceObject(m, o.attitude, o.shadow, o.exact) for m, o in zip(models, objects, strict=True)
+        SpaceObject(m, o.attitude, o.shadow, o.exact, c)
+        for m, o, c in zip(models, objects, lobes, strict=True)
     ]
     return jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *padded)

@@ -38,6 +38,7 @@ import numpy as np
 import pandas as pd
 
 from jaxlc.body.facet_model import facet_model, pad_facets
+from jaxlc.body.lobe_cells import cells_for
 from jaxlc.body.mesh import Facets
 from jaxlc.body.shadow import ShadowSettings, shadow_data, table_order
 from jaxlc.body.shadow_lookup import shadow_table
@@ -102,17 +103,19 @@ def space_object(
     if shadow is not None and not facets.convex:
         data = shadow_data(mesh, facets, shadow, progress=progress)
     if data is None:
-        model = facet_model(facets, materials, dtype=dtype, area_scale=area_scale)
-        return SpaceObject(model=_lanes(model), attitude=attitude)
+        model = _lanes(facet_model(facets, materials, dtype=dtype, area_scale=area_scale))
+        return SpaceObject(model=model, attitude=attitude, lobes=cells_for(model))
+    model = _lanes(
+        facet_model(
+            table_order(facets, data.facet_ids), materials, dtype=dtype, area_scale=area_scale
+        )
+    )
     return SpaceObject(
-        model=_lanes(
-            facet_model(
-                table_order(facets, data.facet_ids), materials, dtype=dtype, area_scale=area_scale
-            )
-        ),
+        model=model,
         attitude=attitude,
         shadow=shadow_table(data, dtype),
         exact=kit_for(data, mesh, facets, dtype) if exact_glints else None,
+        lobes=cells_for(model),
     )
 
 
