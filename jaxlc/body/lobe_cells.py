@@ -12,10 +12,11 @@ direction of the cell (:func:`lobe_cells`). The lobes left out are each below
 :data:`LOBE_FLOOR` of their own peak (25 magnitudes), so the sum is the full one to
 that level.
 
-The S4 rocket body (1,205 facets, a nozzle of 1,058 at z = 300): at most 136 facets a
-cell, and the facet sum over 1,800 samples took 2.7 ms instead of 4.2 on one core
-(shadowed, with the look-up: 5.6 instead of 6.5; ``experiments/profile_shard.py
---shadow-stages``). Meshes under :data:`MIN_FACETS` facets, or whose cells would list
+The S4 rocket body (1,205 facets, a nozzle of 1,058 at z = 300): at most 144 facets a
+cell; on one core its facet sum over 1,800 instants took 3.0 ms instead of 4.5, the
+shadowed kernel 5.5 instead of 6.5 (``taskset -c 0 python experiments/profile_shard.py
+--shadow-stages``), and the bulk mix's S4 curves 29 ms of kernel time instead of 41
+(``--by-class``). Meshes under :data:`MIN_FACETS` facets, or whose cells would list
 more than :data:`MAX_SHARE` of them, keep the plain sum: the gathers cost more than
 they save there.
 """
