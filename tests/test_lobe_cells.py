@@ -28,7 +28,7 @@ from jaxlc.rendering.prepare import space_object
 S4_MESH = MESHES / "falcon9_upper_stage.obj"
 #: Per part (nozzle, engine, nose, body): (rd, rs, nu, nv); the nozzle's lobe anisotropic.
 MATERIALS = [
-    (0.1, 0.5, 300.0, 60.0),
+    (0.1, 0.5, 300.0, 150.0),
     (0.2, 0.3, 100.0, 100.0),
     (0.6, 0.1, 20.0, 20.0),
     (0.6, 0.1, 20.0, 20.0),

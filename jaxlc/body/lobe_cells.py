@@ -12,13 +12,13 @@ direction of the cell (:func:`lobe_cells`). The lobes left out are each below
 :data:`LOBE_FLOOR` of their own peak (25 magnitudes), so the sum is the full one to
 that level.
 
-The S4 rocket body (1,205 facets, a nozzle of 1,058 at z = 300): at most 144 facets a
-cell; on one core its facet sum over 1,800 instants took 3.0 ms instead of 4.5, the
-shadowed kernel 5.5 instead of 6.5 (``taskset -c 0 python experiments/profile_shard.py
---shadow-stages``), and the bulk mix's S4 curves 29 ms of kernel time instead of 41
-(``--by-class``). Meshes under :data:`MIN_FACETS` facets, or whose cells would list
-more than :data:`MAX_SHARE` of them, keep the plain sum: the gathers cost more than
-they save there.
+The S4 rocket body (1,205 facets, a nozzle of 1,058 at z = 300): at most 152 facets a
+cell (with the exponents on their ladder, :func:`exponent_ladder`); on one core its facet
+sum over 1,800 instants took 3.0 ms instead of 4.5, the shadowed kernel 5.5 instead of
+6.5 (``taskset -c 0 python experiments/profile_shard.py --shadow-stages``), and the bulk
+mix's S4 curves 29–30 ms of kernel time instead of 41 (``--by-class``). Meshes under
+:data:`MIN_FACETS` facets, or whose cells would list more than :data:`MAX_SHARE` of them,
+keep the plain sum: the gathers cost more than they save there.
 """
 
 from __future__ import annotations
@@ -41,8 +41,11 @@ LOBE_FLOOR = 1e-10
 CELL_GRID = 64
 #: Meshes with fewer facets keep the plain facet sum.
 MIN_FACETS = 256
-#: Candidate lists longer than this share of the facets are not used.
-MAX_SHARE = 0.5
+#: Candidate lists longer than this share of the facets are not used: a gathered lobe
+#: costs ~4× one of the plain sum (S4, one core), so lists of more than about a quarter
+#: of the facets save nothing (a dataset of S4s with exponents drawn down to 20: 38 ms a
+#: curve either way; 51 ms with lists of up to half the facets).
+MAX_SHARE = 0.2
 #: Margin (rad) added to each cell's radius (its boundary is sampled, not solved).
 RADIUS_MARGIN = 0.01
 #: Points per cell edge where the cell's radius is sampled.
@@ -112,17 +115,27 @@ def lobe_cells(normals: np.ndarray, exponent: np.ndarray, glossy: np.ndarray, gr
         grid: side of the cell grid.
     """
     centre, radius = cell_extent(grid)
-    reach = lobe_reach_rad(exponent)
-    out = []
-    for c0 in range(0, len(centre), 512):  # (512, F) angles at a time
-        cos = np.clip(centre[c0 : c0 + 512] @ np.asarray(normals, np.float64).T, -1.0, 1.0)
-        near = (np.arccos(cos) <= reach[None, :] + radius[c0 : c0 + 512, None]) & glossy[None, :]
-        out += [np.flatnonzero(row) for row in near]
-    k = max(8, -(-max(len(f) for f in out) // 8) * 8)
-    table = np.full((len(out), k), -1, np.int32)
-    for c, f in enumerate(out):
-        table[c, : len(f)] = f
+    idx = np.flatnonzero(glossy)
+    reach = lobe_reach_rad(np.asarray(exponent)[idx])
+    # angle(n, centre) ≤ reach + radius ⟺ n·centre ≥ cos r cos ρ − sin r sin ρ (a sum ≥ π:
+    # always): no transcendental function per cell and facet
+    cos = centre @ np.asarray(normals, np.float64)[idx].T
+    limit = np.outer(np.cos(radius), np.cos(reach)) - np.outer(np.sin(radius), np.sin(reach))
+    rows, cols = np.nonzero((cos >= limit) | (radius[:, None] + reach[None, :] >= math.pi))
+    counts = np.bincount(rows, minlength=len(centre))
+    k = max(8, -(-int(counts.max(initial=0)) // 8) * 8)
+    table = np.full((len(centre), k), -1, np.int32)
+    table[rows, np.arange(len(rows)) - (np.cumsum(counts) - counts)[rows]] = idx[cols]
     return table
+
+
+def exponent_ladder(exponent: np.ndarray) -> np.ndarray:
+    """Exponents rounded down to a ladder of four steps per octave (≥ 1; below 1 kept):
+    a rounded-down exponent reaches farther, so its cells list every facet the exact one
+    would, and models of nearby exponents share one table (:func:`lobe_cells` is memoized)."""
+    z = np.asarray(exponent, np.float64)
+    safe = np.maximum(z, 1.0)
+    return np.where(z >= 1.0, np.exp2(np.floor(4.0 * np.log2(safe)) / 4.0), z)
 
 
 def cells_for(models: FacetModel | list[FacetModel], grid: int = CELL_GRID) -> LobeCells | None:
@@ -140,7 +153,7 @@ def cells_for(models: FacetModel | list[FacetModel], grid: int = CELL_GRID) -> L
         return None
     if any(m.normals.shape != first.normals.shape for m in models):
         return None
-    exponent = np.min([np.minimum(m.nu, m.nv) for m in models], axis=0).astype(np.float64)
+    exponent = exponent_ladder(np.min([np.minimum(m.nu, m.nv) for m in models], axis=0))
     glossy = np.any([np.asarray(m.ks) > 0 for m in models], axis=0)
     table = lobe_cells(np.asarray(first.normals, np.float64), exponent, glossy, grid)
     if table.shape[1] > MAX_SHARE * first.n_facets:

@@ -124,14 +124,10 @@ def batches(n_blocks: int, size: int) -> list[tuple[int, int]]:
 def stacked_objects(cls, objects) -> tuple:
     """(models, attitudes, shared): every curve's padded model and attitude stacked (host
     arrays), the rows a kernel batch takes, and what the class's curves share: one shadow
-    table, exact kit and specular candidate cells (None each where there are none; one
-    table of cells for every curve's exponents, :func:`~jaxlc.body.lobe_cells.cells_for`)."""
+    table, exact kit and table of specular candidate cells, made here for all the curves'
+    exponents (:func:`~jaxlc.body.lobe_cells.cells_for`; None each where there are none)."""
     padded = pad_models([o.model for o in objects], class_flags(cls))
-    lobes = objects[0].lobes
-    if lobes is not None and any(o.lobes is None or o.lobes.facets is not lobes.facets
-                                 for o in objects):  # fmt: skip
-        lobes = cells_for(padded)
-    shared = (objects[0].shadow, objects[0].exact, lobes)
+    shared = (objects[0].shadow, objects[0].exact, cells_for(padded))
     return _stack(padded), _stack([o.attitude for o in objects]), shared
 
 

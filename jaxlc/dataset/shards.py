@@ -68,7 +68,12 @@ def render_shard(config: DatasetConfig, shard: int, pool=None) -> Shard:
     geos = [curve_geometry(config, c, pool) for c in curves]
     scenes = [curve_scene(config, c) for c in curves]
     prepared = [
-        prepare(scene_from_dict(d, source=f"curve {c.index}"), g.arrays, plan_instants=False)
+        prepare(
+            scene_from_dict(d, source=f"curve {c.index}"),
+            g.arrays,
+            plan_instants=False,
+            candidate_cells=False,  # one table per class batch (bulk.stacked_objects)
+        )
         for c, d, g in zip(curves, scenes, geos, strict=True)
     ]
     n, t_len = len(curves), config.samples

@@ -73,6 +73,7 @@ def space_object(
     progress=None,
     facets: Facets | None = None,
     exact_glints: bool = False,
+    candidate_cells: bool = True,
 ) -> SpaceObject:
     """The traced object of a scene, its attitude referred to ``origin_utc``.
 
@@ -88,6 +89,9 @@ def space_object(
             triangles onto them).
         exact_glints: with shadows, clip the lit-and-seen fraction of bright shadowed
             terms exactly (:mod:`jaxlc.rendering.exact_glints`).
+        candidate_cells: give a large glossy mesh its specular candidate cells
+            (:func:`~jaxlc.body.lobe_cells.cells_for`); False leaves them to a caller that
+            makes one table for many curves (dataset generation).
 
     The mesh, its facets and its shadow table are derived once per mesh file
     and process (at the file's scale: the scene's ``scale`` multiplies the
@@ -104,7 +108,8 @@ def space_object(
         data = shadow_data(mesh, facets, shadow, progress=progress)
     if data is None:
         model = _lanes(facet_model(facets, materials, dtype=dtype, area_scale=area_scale))
-        return SpaceObject(model=model, attitude=attitude, lobes=cells_for(model))
+        lobes = cells_for(model) if candidate_cells else None
+        return SpaceObject(model=model, attitude=attitude, lobes=lobes)
     model = _lanes(
         facet_model(
             table_order(facets, data.facet_ids), materials, dtype=dtype, area_scale=area_scale
@@ -115,7 +120,7 @@ def space_object(
         attitude=attitude,
         shadow=shadow_table(data, dtype),
         exact=kit_for(data, mesh, facets, dtype) if exact_glints else None,
-        lobes=cells_for(model),
+        lobes=cells_for(model) if candidate_cells else None,
     )
 
 
@@ -247,6 +252,7 @@ def prepare(
     pad_rows: bool = False,
     progress=None,
     plan_instants: bool = True,
+    candidate_cells: bool = True,
 ) -> Prepared:
     """Prepare a scene over a geometry for the kernel (the module docstring's stages).
 
@@ -267,6 +273,9 @@ def prepare(
             where :func:`adapt` starts, not the plan's worst-case count: for callers
             that always adapt and keep only the refined means (dataset generation;
             S5: ~3 ms a curve saved). Fixed plans keep their instants either way.
+        candidate_cells: False: no specular candidate cells in the object (for callers
+            that make one table for a batch of curves, :func:`jaxlc.dataset.bulk.
+            stacked_objects`: a table per curve of drawn exponents cost ~40 ms, S4).
 
     Example:
         >>> p = prepare("scene.toml", "geometry.csv")
@@ -294,7 +303,14 @@ def prepare(
     )
     with jax.enable_x64(precision == "float64"):
         obj = space_object(
-            scene, origin, precision, plan.shadow, progress, facets, plan.exact_glints
+            scene,
+            origin,
+            precision,
+            plan.shadow,
+            progress,
+            facets,
+            plan.exact_glints,
+            candidate_cells,
         )
     if subsamples is not None and plan.blur.adaptive:
         plan = dataclasses.replace(plan, blur=dataclasses.replace(plan.blur, adaptive=False))
