@@ -21,6 +21,7 @@ from jaxlc.body import lobe_cells, shadow_lookup
 from jaxlc.body.brdf import AshikhminShirley
 from jaxlc.body.facet_model import facet_model
 from jaxlc.body.mesh import load_body
+from jaxlc.body.octahedral import nearest_node
 from jaxlc.rendering.kernel import SpaceObject, body_intensity
 from jaxlc.rendering.options import RenderOptions
 from jaxlc.rendering.prepare import space_object
@@ -63,7 +64,7 @@ def test_cells_list_every_lobe_above_the_floor():
     cos = h @ facets.normals.T  # (H, F)
     lobe = np.where(cos > 0, np.maximum(cos, 0.0) ** exponent[None, :], 0.0)
     listed = np.zeros_like(lobe, dtype=bool)
-    rows = np.asarray(cells.facets)[lobe_cells.cell_index(h, cells.grid, xp=np)]
+    rows = np.asarray(cells.facets)[nearest_node(h, cells.grid)]
     for i, row in enumerate(rows):
         listed[i, row[row >= 0]] = True
     assert not np.any((lobe > lobe_cells.LOBE_FLOOR) & ~listed)

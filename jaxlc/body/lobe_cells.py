@@ -6,11 +6,11 @@ the two), is below :data:`LOBE_FLOOR` of its peak once the half vector h is more
 vanishes beyond 90° (a facet with n·h ≤ 0 is not both lit and seen). On a mesh of
 many glossy facets most lobes are thus negligible at any one sample: the kernel sums
 the diffuse terms of every facet but the specular terms only of the facets listed
-for the cell of h on an octahedral grid (:data:`CELL_GRID` × :data:`CELL_GRID`
-cells; :func:`cell_index`): every facet whose normal lies within θ_f of some
-direction of the cell (:func:`lobe_cells`). The lobes left out are each below
-:data:`LOBE_FLOOR` of their own peak (25 magnitudes), so the sum is the full one to
-that level.
+for the cell of h on an octahedral grid (:data:`CELL_GRID` × :data:`CELL_GRID` cells;
+h's cell is its :func:`~jaxlc.body.octahedral.nearest_node`): every facet whose normal
+lies within θ_f of some direction of the cell (:func:`lobe_cells`). The lobes left out
+are each below :data:`LOBE_FLOOR` of their own peak (25 magnitudes), so the sum is the
+full one to that level.
 
 The S4 rocket body (1,205 facets, a nozzle of 1,058 at z = 300): at most 152 facets a
 cell (with the exponents on their ladder, :func:`exponent_ladder`); on one core its facet
@@ -32,7 +32,7 @@ import numpy as np
 from jaxtyping import Array, Float, Int
 
 from jaxlc.body.facet_model import FacetModel, half_vectors, lobe_terms
-from jaxlc.body.octahedral import octahedral_encode
+from jaxlc.body.octahedral import nearest_node, octahedral_decode
 from jaxlc.memo import identity_memo
 
 #: A lobe below this fraction of its peak is left out of the sum.
@@ -65,14 +65,6 @@ class LobeCells(eqx.Module):
     grid: int = eqx.field(static=True)
 
 
-def cell_index(h, grid: int, xp=jnp):
-    """Cell (i·grid + j) of unit half vectors h (…, 3) on the octahedral grid."""
-    u, v = octahedral_encode(h, xp=xp)
-    i = xp.clip(xp.floor((u + 1.0) * (0.5 * grid)), 0, grid - 1).astype(xp.int32)
-    j = xp.clip(xp.floor((v + 1.0) * (0.5 * grid)), 0, grid - 1).astype(xp.int32)
-    return i * grid + j
-
-
 @functools.cache
 def cell_extent(grid: int) -> tuple[np.ndarray, np.ndarray]:
     """(C, 3) unit centres of the cells and (C,) their radii (rad): the largest angle
@@ -86,11 +78,7 @@ def cell_extent(grid: int) -> tuple[np.ndarray, np.ndarray]:
     i, j = np.meshgrid(np.arange(grid), np.arange(grid), indexing="ij")
     u = -1.0 + (i.reshape(-1, 1) + square[None, :, 0]) * (2.0 / grid)
     v = -1.0 + (j.reshape(-1, 1) + square[None, :, 1]) * (2.0 / grid)
-    z = 1.0 - np.abs(u) - np.abs(v)
-    x = np.where(z >= 0, u, (1.0 - np.abs(v)) * np.where(u >= 0, 1.0, -1.0))
-    y = np.where(z >= 0, v, (1.0 - np.abs(u)) * np.where(v >= 0, 1.0, -1.0))
-    d = np.stack([x, y, z], -1)
-    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    d = octahedral_decode(u, v)  # (C, points, 3): the boundary's points, then the centre
     centre = d[:, -1]
     cos = np.clip(np.einsum("cpk,ck->cp", d[:, :-1], centre), -1.0, 1.0)
     return centre, np.arccos(cos).max(axis=1) + RADIUS_MARGIN
@@ -170,8 +158,8 @@ def padded_cells(cells: LobeCells | None, n_facets: int, k: int, grid: int) -> L
         row[:n_facets] = np.arange(n_facets)
         return LobeCells(facets=np.tile(row, (grid * grid, 1)), grid=grid)
     table = np.asarray(cells.facets)
-    return LobeCells(facets=np.pad(table, ((0, 0), (0, k - table.shape[1])), constant_values=-1),
-                     grid=cells.grid)  # fmt: skip
+    wider = np.pad(table, ((0, 0), (0, k - table.shape[1])), constant_values=-1)
+    return LobeCells(facets=wider, grid=cells.grid)
 
 
 def lobe_intensity(
@@ -192,7 +180,7 @@ def lobe_intensity(
             facet's lit-and-seen fraction).
     """
     half = half_vectors(sun_b, obs_b)
-    idx = jnp.asarray(cells.facets)[cell_index(half[0], cells.grid)]  # (T, K)
+    idx = jnp.asarray(cells.facets)[nearest_node(half[0], cells.grid, xp=jnp)]  # (T, K)
     valid = idx >= 0
     idx = jnp.maximum(idx, 0)
 

@@ -23,16 +23,22 @@ def octahedral_encode(d, xp=np):
     return u, v
 
 
+def octahedral_decode(u, v) -> np.ndarray:
+    """Square coordinates (u, v) in [−1, 1]² (arrays of one shape) → unit vectors (…, 3):
+    the inverse of :func:`octahedral_encode`."""
+    z = 1.0 - np.abs(u) - np.abs(v)
+    x = np.where(z >= 0, u, (1.0 - np.abs(v)) * np.where(u >= 0, 1.0, -1.0))
+    y = np.where(z >= 0, v, (1.0 - np.abs(u)) * np.where(v >= 0, 1.0, -1.0))
+    d = np.stack([x, y, z], -1)
+    return d / np.linalg.norm(d, axis=-1, keepdims=True)
+
+
 def octahedral_directions(n: int) -> np.ndarray:
     """(n², 3) unit directions at the cell centres of the n × n octahedral grid;
     node (i, j) has index i·n + j."""
     c = -1.0 + (np.arange(n) + 0.5) * 2.0 / n
     u, v = np.meshgrid(c, c, indexing="ij")
-    z = 1.0 - np.abs(u) - np.abs(v)
-    x = np.where(z >= 0, u, (1.0 - np.abs(v)) * np.where(u >= 0, 1.0, -1.0))
-    y = np.where(z >= 0, v, (1.0 - np.abs(u)) * np.where(v >= 0, 1.0, -1.0))
-    d = np.stack([x, y, z], -1).reshape(-1, 3)
-    return d / np.linalg.norm(d, axis=1, keepdims=True)
+    return octahedral_decode(u, v).reshape(-1, 3)
 
 
 def wrap_nodes(i, j, n: int):
@@ -93,11 +99,14 @@ def grid_corners(d, n: int, interpolation: str):
     return idx, w
 
 
-def nearest_node(d: np.ndarray, n: int) -> np.ndarray:
-    """Index of the grid node nearest (in grid coordinates) to each direction (…, 3)."""
-    u, v = octahedral_encode(d)
-    i = np.clip(np.round((u + 1.0) * (0.5 * n) - 0.5), 0, n - 1).astype(np.int64)
-    j = np.clip(np.round((v + 1.0) * (0.5 * n) - 0.5), 0, n - 1).astype(np.int64)
+def nearest_node(d, n: int, xp=np):
+    """Index of the grid node nearest (in grid coordinates) to each direction (…, 3): the
+    node of the grid cell that holds it (on a cell's edge, either neighbour's). Works for
+    numpy (int64) and jax (int32) arrays."""
+    u, v = octahedral_encode(d, xp=xp)
+    index = xp.int64 if xp is np else xp.int32
+    i = xp.clip(xp.round((u + 1.0) * (0.5 * n) - 0.5), 0, n - 1).astype(index)
+    j = xp.clip(xp.round((v + 1.0) * (0.5 * n) - 0.5), 0, n - 1).astype(index)
     return i * n + j
 
 

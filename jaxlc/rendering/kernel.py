@@ -112,12 +112,18 @@ def body_intensity(
     return _shadowed_intensity(obj, sun_b, obs_b, lit_seen_columns(obj.shadow, sun_b, obs_b))
 
 
+def lobes_apart(obj: SpaceObject) -> bool:
+    """Whether the object's lobes are summed over each sample's candidate facets alone
+    (:mod:`jaxlc.body.lobe_cells`) rather than in the facet sum."""
+    return obj.lobes is not None and obj.model.use_specular
+
+
 def facet_sum(obj: SpaceObject, sun_b, obs_b, weights=None, weight_at=None):
     """Σ over the facets of :func:`~jaxlc.body.facet_model.facet_intensity` with optional
     (T, F) ``weights``; with :attr:`SpaceObject.lobes`, the specular terms of each sample's
     candidate facets only (:func:`~jaxlc.body.lobe_cells.lobe_intensity`, their weights
     from ``weight_at``, else gathered from ``weights``)."""
-    if obj.lobes is None or not obj.model.use_specular:
+    if not lobes_apart(obj):
         return facet_intensity(obj.model, sun_b, obs_b, weights=weights)
     if weight_at is None and weights is not None:
         weight_at = lambda idx: jnp.take_along_axis(weights, idx, axis=1)  # noqa: E731
@@ -156,7 +162,7 @@ def _weighted_intensity(obj: SpaceObject, sun_b, obs_b, columns):
         n_t, n_rest = columns.shape[0], obj.model.n_facets - end
         weights = jnp.concatenate([*parts, jnp.ones((n_t, n_rest), columns.dtype)], axis=1)
         return facet_sum(obj, sun_b, obs_b, weights=weights)
-    lobes = obj.lobes is not None and obj.model.use_specular  # lobes summed apart, below
+    lobes = lobes_apart(obj)  # summed below, for the candidate facets only
     total = 0.0
     for (_, first, n_facets, _), weights in zip(runs, parts, strict=True):
         part = facet_slice(obj.model, first, first + n_facets)

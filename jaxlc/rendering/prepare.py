@@ -106,20 +106,13 @@ def space_object(
     data = None
     if shadow is not None and not facets.convex:
         data = shadow_data(mesh, facets, shadow, progress=progress)
-    if data is None:
-        model = _lanes(facet_model(facets, materials, dtype=dtype, area_scale=area_scale))
-        lobes = cells_for(model) if candidate_cells else None
-        return SpaceObject(model=model, attitude=attitude, lobes=lobes)
-    model = _lanes(
-        facet_model(
-            table_order(facets, data.facet_ids), materials, dtype=dtype, area_scale=area_scale
-        )
-    )
+    ordered = facets if data is None else table_order(facets, data.facet_ids)
+    model = _lanes(facet_model(ordered, materials, dtype=dtype, area_scale=area_scale))
     return SpaceObject(
         model=model,
         attitude=attitude,
-        shadow=shadow_table(data, dtype),
-        exact=kit_for(data, mesh, facets, dtype) if exact_glints else None,
+        shadow=None if data is None else shadow_table(data, dtype),
+        exact=kit_for(data, mesh, facets, dtype) if data is not None and exact_glints else None,
         lobes=cells_for(model) if candidate_cells else None,
     )
 
