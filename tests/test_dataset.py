@@ -212,18 +212,27 @@ def test_same_bytes_with_two_dask_workers(config_path, reference, tmp_path):
     reason="pins workers that fill 2-4 cores (Linux)",
 )
 def test_local_workers_that_fill_the_cores_get_one_core_each(monkeypatch):
+    """Pinned workers, and no glibc malloc setting from Dask's nanny (it fixes the mmap
+    threshold, and every large array is then faulted in afresh) unless the user set one."""
     pytest.importorskip("distributed")
-    from jaxlc.dataset import runner
+    from jaxlc.dataset import local_cluster, runner
 
+    trim = local_cluster.MALLOC_TRIM_ENV
+    monkeypatch.delenv(trim, raising=False)
     n = len(os.sched_getaffinity(0))
     with runner.dask_client(n, None, n) as client:
         pinned = client.run(os.sched_getaffinity, 0)
+        malloc = client.run(os.environ.get, trim)
     assert sorted(len(c) for c in pinned.values()) == [1] * n
     assert set().union(*pinned.values()) == set(os.sched_getaffinity(0))
-    monkeypatch.setenv(runner.PIN_WORKERS_ENV, "off")
+    assert list(malloc.values()) == [None] * n
+    monkeypatch.setenv(local_cluster.PIN_WORKERS_ENV, "off")
+    monkeypatch.setenv(trim, "1048576")  # the user's own: kept
     with runner.dask_client(n, None, n) as client:
         free = client.run(os.sched_getaffinity, 0)
+        malloc = client.run(os.environ.get, trim)
     assert all(c == os.sched_getaffinity(0) for c in free.values())
+    assert list(malloc.values()) == ["1048576"] * n
 
 
 # ---------------------------------------------------------------------------

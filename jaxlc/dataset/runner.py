@@ -19,17 +19,14 @@ import numpy as np
 
 from jaxlc.dataset.config import MAX_COUNT, DatasetConfig, DatasetError, PassSource
 from jaxlc.dataset.config_file import load_config
-from jaxlc.dataset.shards import WORKER_CACHE_ENV, run_shard
-from jaxlc.io.cache import cache_dir
+from jaxlc.dataset.local_cluster import local_cluster, pin_all
+from jaxlc.dataset.shards import run_shard
 from jaxlc.io.files import check_output
-from jaxlc.xla import XLA_CACHE_ENV
 
 #: Seconds to connect to a scheduler given by address, and to wait for its first worker.
 CONNECT_TIMEOUT_S = 10.0
 #: Most local worker processes per core (each holds its own JAX and compiled kernels).
 MAX_WORKERS_PER_CORE = 4
-#: ``JAXLC_PIN_WORKERS=off`` leaves local workers free to run on any core.
-PIN_WORKERS_ENV = "JAXLC_PIN_WORKERS"
 
 # ---------------------------------------------------------------------------
 # Running a dataset
@@ -66,28 +63,6 @@ def _progress_bar(enabled: bool):
         disable=not enabled,
         transient=False,
     )
-
-
-def _worker_env(n_workers: int) -> dict:
-    """Environment of local worker processes.
-
-    * One XLA thread each when the workers fill the cores: XLA's CPU thread
-      pool would otherwise make every worker use every core, and the workers
-      slow each other down.
-    * JAX's persistent compilation cache (unless ``JAX_COMPILATION_CACHE_DIR``
-      is set already): every worker, and every later run, loads the class
-      kernels instead of compiling them (~5 s per worker process saved).
-    """
-    env = {}
-    cache_off = os.environ.get(XLA_CACHE_ENV, "").lower() == "off"
-    if "JAX_COMPILATION_CACHE_DIR" not in os.environ and not cache_off:
-        env[WORKER_CACHE_ENV] = str(cache_dir("xla"))
-    if n_workers >= len(_cores()):
-        flags = os.environ.get("XLA_FLAGS", "")
-        if "xla_cpu_multi_thread_eigen" not in flags:
-            flags = (flags + " --xla_cpu_multi_thread_eigen=false").strip()
-        env.update(XLA_FLAGS=flags, OMP_NUM_THREADS="1")
-    return env
 
 
 def generate(
@@ -279,8 +254,8 @@ def _warm_shadow_tables(config, bar):
 def dask_client(workers, scheduler, n_todo: int):
     """A Dask client for the run (None for ``workers=0``), closed on the way out.
 
-    Local workers that fill the cores get one core each (:func:`pin_worker`; not with
-    ``$JAXLC_PIN_WORKERS=off``).
+    Local workers (:func:`~jaxlc.dataset.local_cluster.local_cluster`) that fill the
+    cores get one core each (not with ``$JAXLC_PIN_WORKERS=off``).
 
     A scheduler address is connected to here, before anything is written:
     an unreachable or malformed address, or a cluster without workers, is a
@@ -289,9 +264,7 @@ def dask_client(workers, scheduler, n_todo: int):
     if workers == 0:
         yield None
         return
-    import logging
-
-    from distributed import Client, LocalCluster
+    from distributed import Client
 
     cluster = None
     if scheduler is not None:
@@ -316,58 +289,16 @@ def dask_client(workers, scheduler, n_todo: int):
             ) from None
     else:
         n = min(workers or os.cpu_count() or 1, max(n_todo, 1))
-        cluster = LocalCluster(
-            n_workers=n,
-            threads_per_worker=1,
-            processes=True,
-            dashboard_address=":0",  # any free port (8787 may be taken)
-            silence_logs=logging.ERROR,
-            env=_worker_env(n),
-        )
+        cluster = local_cluster(n)
         client = Client(cluster)
     try:
-        if cluster is not None and _pin_workers(workers=n):
-            # an optimisation only: a worker that cannot be pinned runs as before
-            with contextlib.suppress(Exception):
-                client.run(pin_worker, sorted(client.scheduler_info()["workers"]))
+        if cluster is not None:
+            pin_all(client, n)
         yield client
     finally:
         client.close()
         if cluster is not None:
             cluster.close()
-
-
-def _pin_workers(workers: int) -> bool:
-    """Whether local workers get a core each: they fill the cores (more than one), and
-    ``$JAXLC_PIN_WORKERS`` is not ``off``."""
-    off = os.environ.get(PIN_WORKERS_ENV, "").lower() == "off"
-    return not off and workers >= len(_cores()) > 1
-
-
-def _cores() -> list[int]:
-    """The cores this process may run on."""
-    if hasattr(os, "sched_getaffinity"):
-        return sorted(os.sched_getaffinity(0))
-    return list(range(os.cpu_count() or 1))
-
-
-def pin_worker(addresses: list[str], dask_worker=None) -> int | None:
-    """Pin every thread of a local Dask worker to one core of its own (run by ``client.run``
-    on each worker): the worker's place in ``addresses`` picks the core. When the workers
-    fill the cores each runs XLA on one thread (:func:`_worker_env`), and unpinned the two
-    workers of the 2-core reference machine still moved between cores: pinned, the
-    standard mix ran 78.4–81.1 → 91.8–94.1 curves/s steady (four rounds each). Returns the
-    core, or None where threads cannot be pinned (the worker then runs as before)."""
-    if dask_worker is None or not hasattr(os, "sched_setaffinity"):
-        return None
-    cores = _cores()
-    core = cores[addresses.index(dask_worker.address) % len(cores)]
-    try:
-        for tid in os.listdir("/proc/self/task"):  # threads made later inherit the core
-            os.sched_setaffinity(int(tid), {core})
-    except OSError:
-        return None
-    return core
 
 
 def _run_dask(client, config, out: Path, todo, finished):
