@@ -116,7 +116,8 @@ class AttitudeSpec:
             return "fixed"
         if self.model == "spin":
             return (
-                f"spin, period {self.period_s:.6g} s about body {show(np.asarray(self.body_axis))}"
+                f"spin, period {self.period_s:.6g} s about body "
+                f"[{', '.join(f'{float(x):g}' for x in self.body_axis)}]"
                 f", pole RA {self.pole_ra_deg:g}°, Dec {self.pole_dec_deg:g}°"
             )
         tumble = self.tumble()

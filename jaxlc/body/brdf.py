@@ -94,7 +94,10 @@ class _ASLobe(AbstractBRDF):
     def tangent_axis(self) -> tuple[float, float, float]:
         return self.tangent
 
+    @property
     def _lobe_norm(self):
+        """√((nu + 1)(nv + 1)) / 8π (a property: an eqx method is handed out wrapped in a
+        pytree made on each access, ~20 µs)."""
         xp = jnp if isinstance(self.nu, jax.Array) or isinstance(self.nv, jax.Array) else np
         return xp.sqrt((self.nu + 1.0) * (self.nv + 1.0)) / (8.0 * math.pi)
 
@@ -118,7 +121,7 @@ class AshikhminShirley(_ASLobe):
         return dict(
             kl=0.0,
             kd=28.0 * self.rd / (23.0 * math.pi) * (1.0 - self.rs),
-            ks=self._lobe_norm(),
+            ks=self._lobe_norm,
             fa=self.rs,
             fb=1.0 - self.rs,
             nu=self.nu,
@@ -146,7 +149,7 @@ class ASGlossy(_ASLobe):
         return dict(
             kl=self.rd / math.pi,
             kd=0.0,
-            ks=self._lobe_norm(),
+            ks=self._lobe_norm,
             fa=self.rs,
             fb=0.0,
             nu=self.nu,

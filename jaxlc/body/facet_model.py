@@ -99,7 +99,7 @@ def facet_model(
             f"{len(facets.part_names)} parts {facets.part_names}"
         )
     dtype = np.dtype(dtype)
-    coef = [m.coefficients() for m in materials]
+    coef = [type(m).coefficients(m) for m in materials]  # not eqx's bound method (~20 µs)
     xp = np if _concrete(coef) else jnp
     part = np.asarray(facets.part)
     area = xp.asarray(facets.areas_m2 * area_scale, dtype=dtype)

@@ -287,12 +287,20 @@ def load_body(path: str | Path) -> tuple[TriangleMesh, Facets]:
     :meth:`Facets.scaled`; the facet model multiplies areas), so every size
     of one shape shares the mesh, its facets and its shadow table.
     """
-    path = Path(path).resolve()
+    path = Path(path)  # a relative one depends on the working folder: not memoized
+    path = _resolved(str(path)) if path.is_absolute() else path.resolve()
     try:
         st = path.stat()
     except OSError:
         raise MeshError(f"mesh file {str(path)!r} does not exist (check [object] mesh)") from None
     return _load_body(str(path), st.st_size, st.st_mtime_ns)
+
+
+@functools.lru_cache(maxsize=64)
+def _resolved(path: str) -> Path:
+    """An absolute path resolved (once per name: a scene's body is asked for several
+    times a curve, and resolving walks every folder of the path)."""
+    return Path(path).resolve()
 
 
 @functools.lru_cache(maxsize=16)

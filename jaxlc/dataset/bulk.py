@@ -90,18 +90,23 @@ def _stack(trees):
 def _blocks(trees, pad: np.ndarray, t_len: int, fill=None):
     """Each curve's leaves (its M_c instants first) padded by ``pad[c]`` copies of its
     last instant (or of ``fill``) and all curves' instants stacked in blocks of ``t_len``:
-    leaves (n_blocks, t_len, …), so that a batch of consecutive blocks is a slice."""
+    leaves (n_blocks, t_len, …), so that a batch of consecutive blocks is a slice.
 
-    def padded(x, extra):
-        x = np.asarray(x)
-        if not extra:
-            return x
-        tail = x[-1:] if fill is None else np.full_like(x[-1:], fill)
-        return np.concatenate([x, np.repeat(tail, extra, axis=0)])
+    Each leaf is copied once, into its place in one array (a concatenation per curve
+    and then of all curves copied it twice: S5's probes, ~90,000 instants a curve)."""
+    lengths = [len(jax.tree_util.tree_leaves(t)[0]) for t in trees]
+    stops = np.cumsum(np.asarray(lengths, np.int64) + pad)
 
     def leaf(*xs):
-        x = np.concatenate([padded(a, e) for a, e in zip(xs, pad, strict=True)])
-        return x.reshape(-1, t_len, *x.shape[1:])
+        first = np.asarray(xs[0])
+        out = np.empty((int(stops[-1]), *first.shape[1:]), first.dtype)
+        start = 0
+        for x, n, stop in zip(xs, lengths, stops, strict=True):
+            out[start : start + n] = x
+            if stop > start + n:
+                out[start + n : stop] = x[-1] if fill is None else fill
+            start = int(stop)
+        return out.reshape(-1, t_len, *first.shape[1:])
 
     return jax.tree_util.tree_map(leaf, *trees)
 

@@ -21,7 +21,7 @@ import pandas as pd
 from jaxlc.dataset.config import DatasetConfig, DatasetError, SyntheticSource
 from jaxlc.dataset.noise import airmass_from_elevation
 from jaxlc.geometry.synthetic import synthetic_positions
-from jaxlc.io.utc import format_utc, utc_timestamp
+from jaxlc.io.utc import format_utc_time, utc_timestamp
 from jaxlc.rendering.observation import GeometryArrays, geometry_from_positions
 
 
@@ -342,4 +342,4 @@ def curve_geometry(config: DatasetConfig, curve: Curve, pool=None) -> CurveGeome
     arrays = geometry_from_positions(
         t, rso, sun, obs, nu, config.exposure_s, visible, origin_utc=start
     )
-    return CurveGeometry(arrays, airmass, format_utc([start])[0])
+    return CurveGeometry(arrays, airmass, format_utc_time(start))

@@ -73,4 +73,10 @@ def _parsed_once(value: str, where: str, error: type[Exception]) -> pd.Timestamp
 
 def format_utc(times) -> list[str]:
     """ISO 8601 strings with microseconds and a Z suffix."""
-    return [t.strftime("%Y-%m-%dT%H:%M:%S.%fZ") for t in pd.DatetimeIndex(times)]
+    return [format_utc_time(t) for t in pd.DatetimeIndex(times)]
+
+
+def format_utc_time(time: pd.Timestamp) -> str:
+    """One UTC :class:`pandas.Timestamp` as :func:`format_utc` writes it (without making
+    an index: a dataset writes one per curve)."""
+    return time.strftime("%Y-%m-%dT%H:%M:%S.%fZ")

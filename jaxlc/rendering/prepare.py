@@ -171,8 +171,10 @@ def kernel_inputs(
         arrays[3][len(row) :] = 0.0  # zero weight: no contribution
         row = np.concatenate([row, np.full(extra, row[-1], np.int32)])
     t_s, sun, obs, weight = arrays
+    # the class's method called directly: an eqx.Module wraps each method it hands out in a
+    # pytree of its own, ~20 µs to make (785 of them a shard of the standard mix)
     return KernelInputs(
-        times=attitude.times(t_s, **(exact or {})),
+        times=type(attitude).times(attitude, t_s, **(exact or {})),
         sun_dir=sun.astype(dtype),
         obs_dir=obs.astype(dtype),
         weight=weight.astype(dtype),
