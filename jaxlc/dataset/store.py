@@ -35,6 +35,7 @@ shards unless ``partial=True``.
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import dataclasses
 import os
@@ -345,13 +346,33 @@ def done_shards(path: str | Path) -> np.ndarray:
 
 
 def write_shard(path: str | Path, shard: int, start: int, arrays: dict, labels: pd.DataFrame):
-    """Write one shard's rows ``start …`` of every array and label, then mark it done."""
-    root = zarr_module().open_group(str(path), mode="r+")
+    """Write one shard's rows ``start …`` of every array and label, then mark it done.
+
+    The arrays and labels are written together in one pass of zarr's event loop (one
+    write per array, each waited for in turn, took 74 ms a shard of the standard mix,
+    ~5 % of a worker's time); the ``done`` flag is written after all of them."""
+    zarr_module()  # a clear error where zarr is missing
+    from zarr.api.asynchronous import open_group
+    from zarr.core.sync import sync
+
     stop = start + len(labels)
-    for name, x in arrays.items():
-        root[name][start:stop] = x
-    group = root["labels"]
-    for name, (dtype, _, _) in LABELS.items():
-        values = labels[name].to_numpy()
-        group[name][start:stop] = values.astype(object) if dtype == "str" else values
-    root["shards"]["done"][shard] = True  # last: a partial shard is never marked done
+    columns = {
+        name: labels[name].to_numpy().astype(object) if dtype == "str" else labels[name].to_numpy()
+        for name, (dtype, _, _) in LABELS.items()
+    }
+
+    async def write_all():
+        root = await open_group(str(path), mode="r+")
+        label_group = await root.getitem("labels")
+
+        async def put(group, name, x):
+            await (await group.getitem(name)).setitem(slice(start, stop), x)
+
+        await asyncio.gather(
+            *(put(root, name, x) for name, x in arrays.items()),
+            *(put(label_group, name, x) for name, x in columns.items()),
+        )
+        done = await (await root.getitem("shards")).getitem("done")
+        await done.setitem(shard, True)  # last: a partial shard is never marked done
+
+    sync(write_all())
