@@ -14,10 +14,11 @@ so the sum is the full one to that level, and below :data:`LOBE_FLOOR_FLOAT32` (
 magnitudes) in a float32 one, where they are below the rounding of the sum.
 
 The S4 rocket body (1,205 facets, a nozzle of 1,058 at z = 300): at most 152 facets a
-cell (with the exponents on their ladder, :func:`exponent_ladder`); on one core its facet
-sum over 1,800 instants took 3.0 ms instead of 4.5, the shadowed kernel 5.5 instead of
-6.5 (``taskset -c 0 python experiments/profile_shard.py --shadow-stages``), and the bulk
-mix's S4 curves 29–30 ms of kernel time instead of 41 (``--by-class``). Meshes under
+cell in float64 and 120 in float32 (with the exponents on their ladder,
+:func:`exponent_ladder`); on one core its facet sum over 1,800 instants took 3.0 ms
+instead of 4.5, the shadowed kernel 5.5 instead of 6.5 (152 a cell;
+``taskset -c 0 python experiments/profile_shard.py --shadow-stages``), and the bulk
+mix's S4 curves 27.6 ms of kernel time instead of 41 (``--by-class``). Meshes under
 :data:`MIN_FACETS` facets, or whose cells would list more than :data:`MAX_SHARE` of them,
 keep the plain sum: the gathers cost more than they save there.
 """
