@@ -215,6 +215,8 @@ def test_local_workers_that_fill_the_cores_get_one_core_each(monkeypatch):
     """Pinned workers, and no glibc malloc setting from Dask's nanny (it fixes the mmap
     threshold, and every large array is then faulted in afresh) unless the user set one."""
     pytest.importorskip("distributed")
+    import dask
+
     from jaxlc.dataset import local_cluster, runner
 
     trim = local_cluster.MALLOC_TRIM_ENV
@@ -223,9 +225,11 @@ def test_local_workers_that_fill_the_cores_get_one_core_each(monkeypatch):
     with runner.dask_client(n, None, n) as client:
         pinned = client.run(os.sched_getaffinity, 0)
         malloc = client.run(os.environ.get, trim)
+        profiler = client.run(lambda: dask.config.get("distributed.worker.profile.enabled"))
     assert sorted(len(c) for c in pinned.values()) == [1] * n
     assert set().union(*pinned.values()) == set(os.sched_getaffinity(0))
     assert list(malloc.values()) == [None] * n
+    assert list(profiler.values()) == [False] * n  # local_cluster.QUIET_CONFIG reached them
     monkeypatch.setenv(local_cluster.PIN_WORKERS_ENV, "off")
     monkeypatch.setenv(trim, "1048576")  # the user's own: kept
     with runner.dask_client(n, None, n) as client:
