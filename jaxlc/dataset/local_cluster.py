@@ -2,7 +2,8 @@
 
 :func:`local_cluster` starts the worker processes of ``jaxlc generate --workers N``
 (one thread each, a nanny per worker), with an environment that keeps them as fast
-as this process (:func:`worker_env`, :func:`spawn_environ`), and gives each its own
+as this process (:func:`worker_env`, :func:`spawn_environ`), without a dashboard and
+with Dask's own diagnostics rare or off (:data:`QUIET_CONFIG`), and gives each its own
 core when they fill the cores (:func:`pin_worker`).
 """
 
