@@ -206,13 +206,16 @@ def pad_models(models: list[FacetModel], flags: dict | None = None) -> list[Face
 # The facet sum
 
 
+def dot_parts(a, parts):
+    """(T, 3) · facet vectors given as their components (x, y, z), each broadcastable to
+    (T, X) — all facets as (1, F) rows or a few gathered per sample as (T, K) — → (T, X),
+    written out so XLA fuses it into the facet loop."""
+    return a[:, None, 0] * parts[0] + a[:, None, 1] * parts[1] + a[:, None, 2] * parts[2]
+
+
 def _dot(a, b):
-    """(T, 3) · (F, 3) → (T, F), written out so XLA fuses it into the facet loop."""
-    return (
-        a[:, None, 0] * b[None, :, 0]
-        + a[:, None, 1] * b[None, :, 1]
-        + a[:, None, 2] * b[None, :, 2]
-    )
+    """(T, 3) · (F, 3) → (T, F) (:func:`dot_parts` of b's rows)."""
+    return dot_parts(a, tuple(b[None, :, c] for c in range(3)))
 
 
 def _as_diffuse_shape(mu):
@@ -363,9 +366,7 @@ def lobe_terms(half, normal, coef: dict, mu0, mu, tangents=None):
     if tangents is not None:
         # z log(n·h) = (nu hu² + nv hw²) · log(n·h) / (1 − (n·h)²), and
         # 1 − (n·h)² = δ (2 − δ); the ratio tends to −½ as δ → 0.
-        tu, tw = tangents
-        hu = h[:, None, 0] * tu[0] + h[:, None, 1] * tu[1] + h[:, None, 2] * tu[2]
-        hw = h[:, None, 0] * tw[0] + h[:, None, 1] * tw[1] + h[:, None, 2] * tw[2]
+        hu, hw = (dot_parts(h, t) for t in tangents)
         sin2 = delta * (2.0 - delta)
         small = sin2 < 1e-12
         ratio = jnp.where(small, -0.5, log_nh / jnp.where(small, 1.0, sin2))

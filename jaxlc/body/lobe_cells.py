@@ -33,7 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from jaxlc.body.facet_model import FacetModel, half_vectors, lobe_terms
+from jaxlc.body.facet_model import FacetModel, dot_parts, half_vectors, lobe_terms
 from jaxlc.body.octahedral import nearest_node, octahedral_decode
 from jaxlc.memo import identity_memo
 
@@ -212,9 +212,7 @@ def lobe_intensity(
         return tuple(take(x[:, c]) for c in range(3))
 
     normal = vector(model.normals)
-    cosines = [
-        jnp.maximum(sum(d[:, None, c] * normal[c] for c in range(3)), 0.0) for d in (sun_b, obs_b)
-    ]
+    cosines = [jnp.maximum(dot_parts(d, normal), 0.0) for d in (sun_b, obs_b)]
     coef = {k: take(getattr(model, k)) for k in ("ks", "fa", "fb", "nu", "nv")}
     tangents = (vector(model.tangent_u), vector(model.tangent_w)) if model.anisotropic else None
     terms = lobe_terms(half, normal, coef, *cosines, tangents)
