@@ -553,12 +553,15 @@ def test_batches_cover_every_curve_once(reference):
 def test_batches_cover_every_block_once():
     from jaxlc.dataset.bulk import TAIL_BATCH, batches
 
-    for n in range(0, 60):
-        calls = batches(n, 16)
-        covered = [b for start, size in calls for b in range(start, min(start + size, n))]
-        assert covered == list(range(n))
-        assert {size for _, size in calls} <= {16, TAIL_BATCH}
-        assert sum(size for _, size in calls) - n < TAIL_BATCH  # padding: < one tail batch
+    for full, shapes in ((16, {16, 8, TAIL_BATCH}), (64, {64, 32, 16, 8, TAIL_BATCH})):
+        for n in range(0, 4 * full):
+            calls = batches(n, full)
+            covered = [b for start, size in calls for b in range(start, min(start + size, n))]
+            assert covered == list(range(n))
+            assert {size for _, size in calls} <= shapes  # a few compiled shapes
+            assert sum(size for _, size in calls) - n < TAIL_BATCH  # padding: < one tail batch
+            # the remainder in at most one call per halving, and one padded
+            assert len(calls) <= n // full + len(shapes)
 
 
 def test_a_curve_does_not_depend_on_its_batch_neighbours(config_path):
