@@ -14,8 +14,10 @@ D_k = (n_k/n_{k−1})² − 1: 8 for midpoints) and cap rule (at most 3 ×
 * **patterson** (the default now): first level from lobes only (largest gap
   within the lobe's scale σ), D_k once the level's gaps are within σ/2, 1 before
   — the same as :func:`jaxlc.render`, whose refinement is also run, so the replay
-  is checked against the code; and three variants of it: D_k throughout, D = 1 throughout
-  (ε = |ΔQ|), and the first level at gaps within σ/2.
+  is checked against the code (the render also starts a spin's exposures that no
+  lobe reaches from the diffuse scale, :mod:`jaxlc.rendering.glint_bound`: its
+  instants can be fewer than the replay's); and three variants of it: D_k
+  throughout, D = 1 throughout (ε = |ΔQ|), and the first level at gaps within σ/2.
 
 Also the *oracle*: per exposure, the fewest instants of each family from which
 every finer level is within 1 mmag of the reference — what any error estimate

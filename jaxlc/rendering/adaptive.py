@@ -35,6 +35,17 @@ S4 11.1 → 7.1, S5 66 → 54, S6 9.6 → 10.4; mean p95 error 0.67 → 0.11, 0.
 0.09, 0.69 → 0.14, 1.00 → 0.40 mmag; curves with an exposure off by > 10 mmag 3 →
 0 of 40 (worst 1.09 mag → 5.9 mmag).
 
+The first level guards against a glint that every coarse instant misses, so a
+curve's sharpest lobe sets it for all its exposures — yet most exposures of a
+spinning box meet no lobe at all. Where a closed-form bound on what the lobes add
+to an exposure (:func:`jaxlc.rendering.glint_bound.lobe_bound`, for a
+:class:`~jaxlc.body.attitude.Spin`) is within :data:`GLINT_SHARE` of its
+tolerance, the exposure starts from the diffuse terms' levels instead
+(:func:`start_levels`, :func:`exposure_levels`). The standard mix's CubeSats
+(800 curves of the mix, against 256 sub-exposures): 41.5 → 18.2 instants per
+exposure, the worst curve's p95 and max unchanged (0.83 and 4.0 mmag); the mix
+6 % faster on one core.
+
 The refinement is host logic around any evaluator of instants
 (:func:`refine`): :func:`jaxlc.render` evaluates one object, the dataset
 path a batch of curves, the spin fit its model at a mode's spin. Its result is
@@ -70,6 +81,16 @@ CARRY_POWER = 4
 #: Share of the tolerance within which a coarser level must match the refined mean
 #: (:func:`least_level`).
 LEAST_LEVEL_MARGIN = 0.7
+#: Share of the tolerance below which an exposure's lobe bound lets it start from the
+#: diffuse terms' levels (:func:`exposure_levels`).
+GLINT_SHARE = 0.1
+#: The angular scale (rad) that sets an exposure's start where no lobe can glint: half
+#: the diffuse scale (:data:`~jaxlc.rendering.blur.DIFFUSE_SCALE_RAD`).
+PLAIN_SCALE_RAD = 0.125
+#: … and such an exposure's first level at least this: where a face turns on or off
+#: between the instants, the midpoint and the 3-point rule can agree while both are off
+#: (the CubeSat, 41 s spin at phase 104°: 0.8 of a 1 mmag tolerance apart, 10.6 mmag off).
+PLAIN_MIN_LEVEL = 2
 #: Relative flux error per magnitude of error (d mag = 1.0857 dF/F).
 MAG_PER_REL = 2.5 / math.log(10.0)
 
@@ -87,6 +108,11 @@ class Curve:
         resolved_level: the first level whose instants resolve the sharpest lobe (gaps
             within half its scale, :func:`first_level_for`): from there on the error
             law's divisor applies (:func:`divisor`), below it ε = |Q_k − Q_{k−1}|.
+        lobe_bound: (N,) a bound of what the specular lobes add to each exposure's I/E
+            (:func:`jaxlc.rendering.glint_bound.lobe_bound`), or None.
+        plain_levels: (first, resolved) levels from the diffuse terms' scale alone: those
+            of an exposure whose lobe bound is within :data:`GLINT_SHARE` of its
+            tolerance (no glint to miss between coarse instants).
     """
 
     geo: GeometryArrays
@@ -94,6 +120,8 @@ class Curve:
     t0_s: float = 0.0
     first_level: int = 1
     resolved_level: int = 1
+    lobe_bound: np.ndarray | None = None
+    plain_levels: tuple[int, int] = (1, 1)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -173,7 +201,8 @@ def refine(
     for m in mean:
         pos = m[m > 0]
         floor.append(FLOOR_FRACTION * float(np.median(pos)) if len(pos) else 0.0)
-    active = [np.full(len(c.rows), c.first_level > 0) for c in curves]
+    first, resolved = exposure_levels(curves, mean, floor, tol)
+    active = [f > 0 for f in first]
     for k in range(1, max_level + 1):
         todo = [np.flatnonzero(a) for a in active]
         if not any(len(t) for t in todo):
@@ -184,20 +213,20 @@ def refine(
             for c, t in zip(curves, todo, strict=True)
         ]
         new = evaluate(probes)
-        for i, (c, t, v) in enumerate(zip(curves, todo, new, strict=True)):
+        for i, (t, v) in enumerate(zip(todo, new, strict=True)):
             if not len(t):
                 continue
             got = np.asarray(v, np.float64).reshape(len(t), len(frac))
             if k <= NESTED_LEVELS:  # kept: the next nested level reuses these instants
                 got = values[i] = np.concatenate([values[i], got], axis=1)
             m = got @ stacked_weights(k)
-            change = np.abs(m - mean[i][t]) / divisor(k, c.resolved_level)
+            change = np.abs(m - mean[i][t]) / divisor(k, resolved[i][t])
             carried = own[i][t] * (level_count(k - 1) / level_count(k)) ** CARRY_POWER
             err, own[i][t] = np.maximum(change, carried), change
             mean[i][t], level[i][t], error[i][t] = m, k, err
             if least_levels:
                 by_level[i][t, k] = m
-            done = (k >= c.first_level) & (err <= tol * np.maximum(m, floor[i]))
+            done = (k >= first[i][t]) & (err <= tol * np.maximum(m, floor[i]))
             active[i][t[done]] = False
             if k < NESTED_LEVELS:
                 values[i] = values[i][~done]
@@ -206,7 +235,7 @@ def refine(
             done = np.flatnonzero(~a & (level[i] > 0))
             lv, m, e = least_level(
                 by_level[i][done], level[i][done], error[i][done], tol, floor[i],
-                curves[i].resolved_level,
+                resolved[i][done],
             )  # fmt: skip
             level[i][done], mean[i][done], error[i][done] = lv, m, e
     out = []
@@ -221,6 +250,27 @@ def refine(
             )
         )
     return out
+
+
+def exposure_levels(curves: list[Curve], mean: list, floor: list, tol: float):
+    """Each exposure's (first, resolved) levels: the curve's, or its
+    :attr:`Curve.plain_levels` where its :attr:`Curve.lobe_bound` is at most
+    :data:`GLINT_SHARE` × tol × max(level-0 mean, floor) (the lobes then add less than
+    that share of the tolerance, however the instants fall).
+
+    Returns:
+        Two lists of (N,) int arrays, one per curve.
+    """
+    first, resolved = [], []
+    for c, m, fl in zip(curves, mean, floor, strict=True):
+        f, r = np.full(len(c.rows), c.first_level), np.full(len(c.rows), c.resolved_level)
+        if c.lobe_bound is not None:
+            free = c.lobe_bound <= GLINT_SHARE * tol * np.maximum(m, fl)
+            f = np.where(free, c.plain_levels[0], f)
+            r = np.where(free, c.plain_levels[1], r)
+        first.append(f)
+        resolved.append(r)
+    return first, resolved
 
 
 def least_level(
@@ -247,7 +297,7 @@ def least_level(
         level: (N,) the last level, where the estimated error met the tolerance.
         error: (N,) that estimated error (I/E).
         tol: relative tolerance; floor: the absolute floor of its scale (I/E).
-        resolved_level: the curve's :attr:`Curve.resolved_level`.
+        resolved_level: (N,) each exposure's resolved level (or one for all).
 
     Returns:
         (N,) levels, (N,) their means and (N,) error bounds |M_l − M_last| + error.
@@ -257,8 +307,9 @@ def least_level(
     bound = np.abs(by_level - ref[:, None]) + error[:, None]
     scale = tol * np.maximum(ref, floor)[:, None]
     est = np.full_like(by_level, np.inf)
-    law = [divisor(k, resolved_level) for k in range(1, by_level.shape[1])]
-    est[:, 1:] = np.abs(np.diff(by_level, axis=1)) / np.asarray(law)
+    resolved = np.broadcast_to(resolved_level, level.shape)
+    for k in range(1, by_level.shape[1]):
+        est[:, k] = np.abs(by_level[:, k] - by_level[:, k - 1]) / divisor(k, resolved)
     if by_level.shape[1] > 1:
         est[:, 0] = np.abs(by_level[:, 1] - by_level[:, 0])
     ok = (bound <= LEAST_LEVEL_MARGIN * scale) & (est <= scale)  # NaN compares False
@@ -267,14 +318,34 @@ def least_level(
     return least, by_level[rows, least], bound[rows, least]
 
 
-def divisor(level: int, resolved_level: int) -> float:
+def divisor(level: int, resolved_level):
     """The error law's divisor at ``level``: D_k (:func:`~jaxlc.rendering.patterson.
     error_divisor`) once the level's instants resolve the sharpest lobe, else 1. A glint
     between coarse instants does not converge as n⁻²: two unresolved levels can agree
     to within D_k × the tolerance and both be off (the CubeSat, 43 s spin: 19.8 mmag
     at a 1 mmag tolerance with D_k throughout, 1.4 mmag this way;
-    ``experiments/quadrature_study.py``)."""
-    return error_divisor(level) if level >= resolved_level else 1.0
+    ``experiments/quadrature_study.py``). ``resolved_level`` may be an array (one per
+    exposure): the divisors are then an array of its shape."""
+    return np.where(level >= np.asarray(resolved_level), error_divisor(level), 1.0)
+
+
+def start_levels(blur, last: int, least_levels: bool = False):
+    """The (first, resolved) levels of a curve whose motion is ``blur``
+    (:class:`~jaxlc.rendering.blur.BlurChoice`): :func:`first_level_for` its sweep over
+    the start scale and over half of it (``least_levels``: the first one finer), at
+    most ``last``; and the same over :data:`PLAIN_SCALE_RAD`, the first at least
+    :data:`PLAIN_MIN_LEVEL` — the levels of an exposure that no lobe can glint in
+    (:func:`exposure_levels`), never above the curve's own."""
+    levels = []
+    for scale in (blur.start_scale, PLAIN_SCALE_RAD):
+        first = min(last, first_level_for(blur.sweep_rad, scale) + int(least_levels))
+        levels.append((first, first_level_for(blur.sweep_rad, scale / 2)))
+    (first, resolved), (p_first, p_resolved) = levels
+    plain = (
+        min(first, max(PLAIN_MIN_LEVEL, p_first)),
+        min(resolved, max(PLAIN_MIN_LEVEL, p_resolved)),
+    )
+    return (first, resolved), plain
 
 
 def first_level_for(sweep_rad: float, scale_rad: float) -> int:

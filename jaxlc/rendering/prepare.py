@@ -46,12 +46,13 @@ from jaxlc.errors import JaxlcError
 from jaxlc.rendering.adaptive import (
     Curve,
     Refinement,
-    first_level_for,
     max_level_for,
     refine,
+    start_levels,
 )
 from jaxlc.rendering.exact_glints import kit_for
 from jaxlc.rendering.exposures import Exposures, exposure_instants
+from jaxlc.rendering.glint_bound import lobe_bound
 from jaxlc.rendering.kernel import KernelInputs, SpaceObject
 from jaxlc.rendering.observation import GeometryArrays, as_geometry
 from jaxlc.rendering.options import RenderOptions
@@ -404,11 +405,14 @@ def adapt(
     last = next(iter(level))
     curves = []
     for i in todo:
-        blur = prepared[i].plan.blur
-        first = min(last, first_level_for(blur.sweep_rad, blur.start_scale) + int(least_levels))
-        resolved = first_level_for(blur.sweep_rad, blur.start_scale / 2)
-        prep = prepared[i]
-        curves.append(Curve(prep.geometry, prep.exposures.rows, prep.t0_s, first, resolved))
+        p = prepared[i]
+        (first, resolved), plain = start_levels(p.plan.blur, last, least_levels)
+        bound = None
+        if plain != (first, resolved):  # a lobe sets the start: where can it glint?
+            period = p.scene.attitude.exact_parameters().get("period_s")
+            obj, rows = p.object, p.exposures.rows
+            bound = lobe_bound(obj.model, obj.attitude, p.geometry, rows, p.t0_s, period)
+        curves.append(Curve(p.geometry, p.exposures.rows, p.t0_s, first, resolved, bound, plain))
     found = refine(
         curves,
         lambda probes: evaluate([(prepared[i], p) for i, p in zip(todo, probes, strict=True)]),
