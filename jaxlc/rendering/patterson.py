@@ -139,6 +139,7 @@ def error_divisor(level: int) -> float:
     return (level_count(k) / level_count(k - 1)) ** 2 - 1.0
 
 
+@functools.cache
 def largest_gap(level: int) -> float:
     """The largest distance between neighbouring points of a level, or from an end of the
     exposure to its nearest point, as a fraction of the exposure."""
