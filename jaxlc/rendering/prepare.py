@@ -408,7 +408,7 @@ def adapt(
         p = prepared[i]
         (first, resolved), plain = start_levels(p.plan.blur, last, least_levels)
         bound = None
-        if plain != (first, resolved):  # a lobe sets the start: where can it glint?
+        if plain[0] < first:  # a lobe sets a later start: where can it glint?
             period = p.scene.attitude.exact_parameters().get("period_s")
             obj, rows = p.object, p.exposures.rows
             bound = lobe_bound(obj.model, obj.attitude, p.geometry, rows, p.t0_s, period)
