@@ -139,7 +139,7 @@ def run(store, workers, count, cap=0):
 
     Returns:
         (seconds, curves, renders (kernel instants), mean instants per exposure,
-        curves/s after the first shard, load average).
+        curves/s after each worker's first shard, load average).
     """
     load = os.getloadavg()[0]
     r = subprocess.run(

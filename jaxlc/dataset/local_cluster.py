@@ -26,7 +26,8 @@ MALLOC_TRIM_ENV = "MALLOC_TRIM_THRESHOLD_"
 #: (every 20 ms) and the system and memory monitors (every 0.5 and 0.1 s). With no
 #: dashboard (:func:`local_cluster`), two workers of the standard mix made 138-143
 #: curves/s after the first shard against 126-134 (three interleaved runs each of 1,500
-#: curves); the main process's share of a core fell from 3.8 % to 1.0 %.
+#: curves, the second worker's first shard counted in: the ratio stands, the rates are
+#: ~9 % high); the main process's share of a core fell from 3.8 % to 1.0 %.
 QUIET_CONFIG = {
     "distributed.worker.profile.enabled": False,
     "distributed.admin.tick.interval": "1s",
