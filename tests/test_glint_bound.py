@@ -78,3 +78,5 @@ def test_glint_free_exposures_start_coarser_and_stay_within_tolerance(monkeypatc
     instants = [float(lc.attrs["plan"].split(" instants per exposure")[0].split()[-1])
                 for lc in (auto, lobe_start)]  # fmt: skip
     assert instants[0] < 0.7 * instants[1], instants
+    assert "started from the diffuse scale" in auto.attrs["plan"]  # the plan says so
+    assert "started from the diffuse scale" not in lobe_start.attrs["plan"]

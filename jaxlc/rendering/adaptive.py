@@ -134,6 +134,8 @@ class Refinement:
         level: (N,) final level (:func:`~jaxlc.rendering.patterson.level_count` instants).
         error: (N,) estimated error of ``intensity`` (m² sr⁻¹; 0 at level 0).
         capped: exposures that reached the last level without meeting the tolerance.
+        glint_free: exposures started below the curve's first level, no lobe within
+            reach (:func:`exposure_levels`).
     """
 
     curve: Curve
@@ -141,6 +143,7 @@ class Refinement:
     level: np.ndarray
     error: np.ndarray
     capped: int
+    glint_free: int = 0
 
     @functools.cached_property
     def exposures(self) -> Exposures:
@@ -158,7 +161,15 @@ class Refinement:
         counts = np.bincount(self.level, minlength=1)
         parts = ", ".join(f"{level_count(k)}: {c}" for k, c in enumerate(counts) if c)
         cap = f"; {self.capped} at the cap" if self.capped else ""
-        return f"{self.instants / n:.2f} instants per exposure (instants: exposures — {parts}{cap})"
+        free = (
+            f"; {self.glint_free} started from the diffuse scale, no lobe within reach"
+            if self.glint_free
+            else ""
+        )
+        return (
+            f"{self.instants / n:.2f} instants per exposure "
+            f"(instants: exposures — {parts}{cap}{free})"
+        )
 
 
 def refine(
@@ -239,7 +250,7 @@ def refine(
             )  # fmt: skip
             level[i][done], mean[i][done], error[i][done] = lv, m, e
     out = []
-    for c, m, lv, e, a in zip(curves, mean, level, error, active, strict=True):
+    for c, m, lv, e, a, f in zip(curves, mean, level, error, active, first, strict=True):
         out.append(
             Refinement(
                 curve=c,
@@ -247,6 +258,7 @@ def refine(
                 level=lv,
                 error=e,
                 capped=int(np.count_nonzero(a)),
+                glint_free=int(np.count_nonzero(f < c.first_level)),
             )
         )
     return out
