@@ -61,6 +61,7 @@ import math
 
 import numpy as np
 
+from jaxlc.rendering.blur import DIFFUSE_SCALE_RAD
 from jaxlc.rendering.exposures import Exposures, nested_instants, probe_instants
 from jaxlc.rendering.observation import GeometryArrays
 from jaxlc.rendering.patterson import (
@@ -85,8 +86,8 @@ LEAST_LEVEL_MARGIN = 0.7
 #: diffuse terms' levels (:func:`exposure_levels`).
 GLINT_SHARE = 0.1
 #: The angular scale (rad) that sets an exposure's start where no lobe can glint: half
-#: the diffuse scale (:data:`~jaxlc.rendering.blur.DIFFUSE_SCALE_RAD`).
-PLAIN_SCALE_RAD = 0.125
+#: the diffuse scale (the whole one left 5 of 400 CubeSat curves over 10 mmag).
+PLAIN_SCALE_RAD = 0.5 * DIFFUSE_SCALE_RAD
 #: … and such an exposure's first level at least this: where a face turns on or off
 #: between the instants, the midpoint and the 3-point rule can agree while both are off
 #: (the CubeSat, 41 s spin at phase 104°: 0.8 of a 1 mmag tolerance apart, 10.6 mmag off).
