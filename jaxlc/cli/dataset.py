@@ -28,9 +28,14 @@ def generate(
     """Render a bulk dataset (Zarr) from CONFIG; an unfinished OUTPUT is resumed."""
     from jaxlc.dataset import generate as make_dataset
     from jaxlc.dataset import load_config
+    from jaxlc.xla import enable_persistent_cache
 
     t0 = time.perf_counter()
     cfg = load_config(config)
+    if workers == 0 and scheduler is None:
+        # rendered here: load the class kernels from JAX's persistent cache, as local
+        # workers do (200 curves of the standard mix: 6.9 s instead of 13.8 s)
+        enable_persistent_cache()
     ds = make_dataset(cfg, output, workers=workers, scheduler=scheduler, count=count, seed=seed)
     elapsed = time.perf_counter() - t0
     n = len(ds)
