@@ -79,6 +79,7 @@ def facet_model(
     materials: list[AbstractBRDF],
     dtype=jnp.float32,
     area_scale: float = 1.0,
+    n_facets: int | None = None,
 ) -> FacetModel:
     """Attach one material per part to the facets.
 
@@ -87,11 +88,13 @@ def facet_model(
         materials: one material per entry of ``facets.part_names``.
         dtype: float dtype of the model's arrays.
         area_scale: multiplies every facet area (a scene's ``scale`` squared).
+        n_facets: pad with inert facets up to this many (:func:`pad_facets`; default none).
 
     Returns:
         :class:`FacetModel`: numpy arrays when the materials hold plain numbers
-        (fast, no device work), JAX arrays (differentiable in the materials'
-        parameters) when they hold traced values.
+        (fast, no device work; what does not depend on ``area_scale`` made once per
+        facets and materials, :func:`_unit_model`), JAX arrays (differentiable in the
+        materials' parameters) when they hold traced values.
     """
     if len(materials) != len(facets.part_names):
         raise ValueError(
@@ -100,29 +103,60 @@ def facet_model(
         )
     dtype = np.dtype(dtype)
     coef = [type(m).coefficients(m) for m in materials]  # not eqx's bound method (~20 µs)
-    xp = np if _concrete(coef) else jnp
-    part = np.asarray(facets.part)
-    area = xp.asarray(facets.areas_m2 * area_scale, dtype=dtype)
-    per_part = {k: xp.stack([xp.asarray(c[k], dtype=dtype) for c in coef]) for k in COEFFICIENTS}
-    per_facet = {k: v[part] for k, v in per_part.items()}
-    u, w = _part_frames(facets, tuple(tuple(m.tangent_axis) for m in materials))
-
-    return FacetModel(
-        normals=xp.asarray(facets.normals, dtype=dtype),
-        tangent_u=xp.asarray(u, dtype=dtype),
-        tangent_w=xp.asarray(w, dtype=dtype),
-        kl=per_facet["kl"] * area,
-        kd=per_facet["kd"] * area,
-        ks=per_facet["ks"] * area,
-        fa=per_facet["fa"],
-        fb=per_facet["fb"],
-        nu=per_facet["nu"],
-        nv=per_facet["nv"],
+    flags = dict(
         use_lambert=any(m.has_lambert for m in materials),
         use_as_diffuse=any(m.has_as_diffuse for m in materials),
         use_specular=any(m.has_specular for m in materials),
         anisotropic=any(m.anisotropic for m in materials),
     )
+    axes = tuple(tuple(m.tangent_axis) for m in materials)
+    if _concrete(coef):  # the same shape and materials at every size: made once
+        values = tuple(tuple(float(np.asarray(c[k])) for k in COEFFICIENTS) for c in coef)
+        unit = _unit_model(facets, values, axes, dtype.str, n_facets or len(facets.part))
+        scale = np.asarray(area_scale, dtype)
+        arrays = dict(zip(UNIT_FIELDS, unit, strict=True))
+        arrays.update({k: arrays[k] * scale for k in AREA_FIELDS})
+        return FacetModel(**arrays, **flags)
+    part = np.asarray(facets.part)
+    area = jnp.asarray(facets.areas_m2 * area_scale, dtype=dtype)
+    per_part = {k: jnp.stack([jnp.asarray(c[k], dtype=dtype) for c in coef]) for k in COEFFICIENTS}
+    per_facet = {k: v[part] for k, v in per_part.items()}
+    u, w = _part_frames(facets, axes)
+    model = FacetModel(
+        normals=jnp.asarray(facets.normals, dtype=dtype),
+        tangent_u=jnp.asarray(u, dtype=dtype),
+        tangent_w=jnp.asarray(w, dtype=dtype),
+        **{k: per_facet[k] * area if k in AREA_FIELDS else per_facet[k] for k in COEFFICIENTS},
+        **flags,
+    )
+    return model if n_facets is None else pad_facets(model, n_facets)
+
+
+#: The coefficients that hold the facet area (m² sr⁻¹).
+AREA_FIELDS = ("kl", "kd", "ks")
+#: The array fields of a :class:`FacetModel`, in :func:`_unit_model`'s order.
+UNIT_FIELDS = ("normals", "tangent_u", "tangent_w", *COEFFICIENTS)
+
+
+@identity_memo(maxsize=16)
+def _unit_model(facets: Facets, values: tuple, axes: tuple, dtype: str, n_facets: int) -> tuple:
+    """A :class:`FacetModel`'s arrays (:data:`UNIT_FIELDS`) at area scale 1 (numpy,
+    ``dtype``, read-only: shared by every model made from them) for per-part
+    coefficient ``values`` (one tuple of :data:`COEFFICIENTS` a part), padded with inert
+    facets to ``n_facets``: once per facets and materials, not per curve."""
+    part = np.asarray(facets.part)
+    per_part = np.asarray(values, np.float64)  # (parts, coefficients)
+    area = np.asarray(facets.areas_m2, np.float64)
+    u, w = _part_frames(facets, axes)
+    out = {"normals": facets.normals, "tangent_u": u, "tangent_w": w}
+    for i, k in enumerate(COEFFICIENTS):
+        out[k] = per_part[part, i] * (area if k in AREA_FIELDS else 1.0)
+    extra = n_facets - len(part)
+    if extra > 0:  # inert facets, as pad_facets
+        for k, x in out.items():
+            fill = [0.0, 0.0, 1.0] if x.ndim == 2 else 1.0 if k in ("nu", "nv") else 0.0
+            out[k] = np.concatenate([x, np.broadcast_to(np.asarray(fill), (extra, *x.shape[1:]))])
+    return tuple(np.array(out[k], dtype) for k in UNIT_FIELDS)
 
 
 @identity_memo(maxsize=16)
@@ -171,6 +205,8 @@ def pad_facets(model: FacetModel, n_facets: int, flags: dict | None = None) -> F
     """The model with inert facets (zero coefficients) up to ``n_facets`` and, if
     given, other static flags (a flag set needlessly only adds zeros)."""
     extra = n_facets - model.n_facets
+    if extra <= 0 and (flags is None or all(getattr(model, f) == v for f, v in flags.items())):
+        return model  # nothing to add (a class's curves share one facet count)
     arrays = {}
     for field in dataclasses.fields(model):
         if field.name in FLAGS:

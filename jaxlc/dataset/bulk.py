@@ -205,7 +205,7 @@ def _evaluate(config, stacked, inputs, relative: bool) -> list[np.ndarray]:
             n_rows=t_len,
             subsamples=None,
         )
-        pick = functools.partial(jax.tree_util.tree_map, lambda x: x[j])  # noqa: B023
+        pick = functools.partial(jax.tree_util.tree_map, lambda x: np.take(x, j, axis=0))  # noqa: B023
         got = kernel(pick(models), pick(attitudes), shared, batch)
         got_all[b0 : b0 + real] = np.asarray(got, np.float64)[:real]
     for c in range(len(inputs)):  # a curve's blocks in order: fixed sums

@@ -110,8 +110,8 @@ def synthetic_positions(
     s = np.array([math.cos(dec) * math.cos(ra), math.cos(dec) * math.sin(ra), math.sin(dec)])
     q = np.array([-math.sin(ra), math.cos(ra), 0.0])
     tilt = math.radians(tilt_deg)
-    e = math.cos(tilt) * q + math.sin(tilt) * np.cross(s, q)
-    obs_dir = np.cos(alpha)[:, None] * s + np.sin(alpha)[:, None] * e
-    obs = rng[:, None] * obs_dir
+    s_q = np.array([-s[2] * q[1], s[2] * q[0], s[0] * q[1] - s[1] * q[0]])  # s × q (q_z = 0)
+    e = math.cos(tilt) * q + math.sin(tilt) * s_q
+    obs = np.outer(rng * np.cos(alpha), s) + np.outer(rng * np.sin(alpha), e)
     sun = np.broadcast_to(AU_M * s, (n, 3))
     return t, np.zeros((n, 3)), sun, obs

@@ -114,6 +114,10 @@ class Curve:
         plain_levels: (first, resolved) levels from the diffuse terms' scale alone: those
             of an exposure whose lobe bound is within :data:`GLINT_SHARE` of its
             tolerance (no glint to miss between coarse instants).
+        midpoints: the level-0 probe when the caller already has it (equal to
+            :func:`~jaxlc.rendering.exposures.probe_instants` of ``rows`` at ½): an
+            evaluator may then reuse what it made for it (:func:`jaxlc.rendering.prepare.
+            probe_inputs`), or None.
     """
 
     geo: GeometryArrays
@@ -123,6 +127,7 @@ class Curve:
     resolved_level: int = 1
     lobe_bound: np.ndarray | None = None
     plain_levels: tuple[int, int] = (1, 1)
+    midpoints: Exposures | None = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -197,7 +202,10 @@ def refine(
         One :class:`Refinement` per curve.
     """
     tol = tolerance_mag / MAG_PER_REL
-    probes = [probe_instants(c.geo, c.rows, [0.5], c.t0_s) for c in curves]
+    probes = [
+        probe_instants(c.geo, c.rows, [0.5], c.t0_s) if c.midpoints is None else c.midpoints
+        for c in curves
+    ]
     mean = [np.array(v, np.float64) for v in evaluate(probes)]  # own, writable copies
     # the values at the nested levels' instants (in evaluation order) of the exposures
     # still refined: row j is exposure todo[j] of the level (the active set only shrinks)

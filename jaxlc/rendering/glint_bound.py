@@ -92,7 +92,7 @@ def lobe_bound(
     omega = 2.0 * math.pi / period
 
     rows = np.asarray(rows, np.int64)
-    sv = geo.sun_dir[rows] + geo.obs_dir[rows]
+    sv = np.take(geo.sun_dir, rows, axis=0) + np.take(geo.obs_dir, rows, axis=0)
     norm = np.linalg.norm(sv, axis=1)
     ok = norm > 1e-9  # α → 180°: no facet is both lit and seen
     h = sv / np.where(ok, norm, 1.0)[:, None]

@@ -37,7 +37,7 @@ import jax
 import numpy as np
 import pandas as pd
 
-from jaxlc.body.facet_model import facet_model, pad_facets
+from jaxlc.body.facet_model import facet_model
 from jaxlc.body.lobe_cells import cells_for
 from jaxlc.body.mesh import Facets
 from jaxlc.body.shadow import ShadowSettings, shadow_data, table_order
@@ -108,7 +108,7 @@ def space_object(
     if shadow is not None and not facets.convex:
         data = shadow_data(mesh, facets, shadow, progress=progress)
     ordered = facets if data is None else table_order(facets, data.facet_ids)
-    model = _lanes(facet_model(ordered, materials, dtype=dtype, area_scale=area_scale))
+    model = facet_model(ordered, materials, dtype, area_scale, lane_facets(ordered.n_facets))
     return SpaceObject(
         model=model,
         attitude=attitude,
@@ -127,11 +127,11 @@ PAD_BELOW_FACETS = 64
 FACET_LANES = 8
 
 
-def _lanes(model):
-    n = model.n_facets
+def lane_facets(n: int) -> int | None:
+    """The facet count an object of ``n`` facets is padded to (None: as it is)."""
     if n >= PAD_BELOW_FACETS or n % FACET_LANES == 0:
-        return model
-    return pad_facets(model, -(-n // FACET_LANES) * FACET_LANES)
+        return None
+    return -(-n // FACET_LANES) * FACET_LANES
 
 
 # ---------------------------------------------------------------------------
@@ -362,7 +362,13 @@ def with_exposures(prepared: Prepared, exposures: Exposures, pad_rows: bool = Fa
 
 def probe_inputs(prepared: Prepared, probe: Exposures, pad: bool = True) -> KernelInputs:
     """Kernel inputs that give I/E at each instant of ``probe`` (one instant per row),
-    padded to a :func:`bucket_size` (``pad``) so that a few sizes share one compilation."""
+    padded to a :func:`bucket_size` (``pad``) so that a few sizes share one compilation;
+    ``prepared.inputs`` where ``probe`` is ``prepared.exposures`` (the midpoints that
+    :func:`prepare` made without ``plan_instants``, :func:`adapt`'s first probe) padded alike."""
+    if probe is prepared.exposures and prepared.inputs.n_rows == (
+        bucket_size(probe.n_rows) if pad else probe.n_rows
+    ):
+        return prepared.inputs
     return kernel_inputs(
         prepared.object.attitude,
         probe,
@@ -412,7 +418,9 @@ def adapt(
             period = p.scene.attitude.exact_parameters().get("period_s")
             obj, rows = p.object, p.exposures.rows
             bound = lobe_bound(obj.model, obj.attitude, p.geometry, rows, p.t0_s, period)
-        curves.append(Curve(p.geometry, p.exposures.rows, p.t0_s, first, resolved, bound, plain))
+        e = p.exposures  # its midpoints (prepare without plan_instants): the first probe
+        mid = e if e.subsamples == 1 and e.quadrature == "midpoint" else None
+        curves.append(Curve(p.geometry, e.rows, p.t0_s, first, resolved, bound, plain, mid))
     found = refine(
         curves,
         lambda probes: evaluate([(prepared[i], p) for i, p in zip(todo, probes, strict=True)]),
