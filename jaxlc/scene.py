@@ -287,7 +287,42 @@ _ALBEDO = "reflectance, 0 … 1"
 _EXPONENT = "AS exponent, 0 … 1e6"
 
 
+#: Materials parsed from valid [[material]] tables, by their content (a dataset's curves
+#: repeat a few: ~30 µs each saved a curve); at most :data:`MATERIAL_MEMO` kept.
+_MATERIALS: dict = {}
+MATERIAL_MEMO = 256
+
+
+def _entry_key(entry):
+    """A hashable key of a [[material]] table's content (types included), or None."""
+    if not isinstance(entry, dict):
+        return None
+    items = []
+    for k, v in sorted(entry.items(), key=lambda kv: str(kv[0])):
+        if isinstance(v, list):
+            v = tuple((type(x).__name__, x) for x in v)
+        items.append((k, type(v).__name__, v))
+    key = tuple(items)
+    try:
+        hash(key)
+    except TypeError:
+        return None
+    return key
+
+
 def _parse_material(entry, where) -> MaterialSpec:
+    key = _entry_key(entry)
+    spec = _MATERIALS.get(key) if key is not None else None
+    if spec is None:
+        spec = _parse_material_table(entry, where)  # an invalid table raises: never kept
+        if key is not None:
+            if len(_MATERIALS) >= MATERIAL_MEMO:
+                _MATERIALS.pop(next(iter(_MATERIALS)))
+            _MATERIALS[key] = spec
+    return spec
+
+
+def _parse_material_table(entry, where) -> MaterialSpec:
     sec = Section(entry, where, SceneError)
     part = sec.get("part", str, default="*")
     name = sec.get("brdf", str, what=f"one of {', '.join(BRDFS)}")

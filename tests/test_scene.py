@@ -29,6 +29,14 @@ period_s = 82.6
 """
 
 
+#: BASE as a dict (scene_from_dict), the mesh by its shipped name.
+SCENE_DICT = {
+    "object": {"mesh": "falcon9_upper_stage.obj"},
+    "attitude": {"model": "spin", "body_axis": [1, 0, 0], "pole_ra_deg": 30.0,
+                 "pole_dec_deg": 60.0, "period_s": 82.6},
+}  # fmt: skip
+
+
 @pytest.mark.parametrize("path", sorted(SCENES.glob("*.toml")), ids=lambda p: p.stem)
 def test_shipped_scenes_parse(path):
     scene = jaxlc.load_scene(path)
@@ -185,3 +193,20 @@ def test_files_are_never_looked_up_in_the_working_directory(tmp_path, monkeypatc
         assert jaxlc.load_scene(name).mesh_path.name == "falcon9_upper_stage.obj"
     with pytest.raises(SceneError, match="shipped scenes: S1"):
         jaxlc.load_scene("s9_nothing")
+
+
+def test_a_remembered_material_never_lets_a_bad_one_through():
+    """Valid [[material]] tables are parsed once per content (dataset curves repeat them):
+    a table that differs only in a value's type, or in a bad value, still gets its error,
+    and the remembered one comes back equal."""
+    good = {"part": "*", "brdf": "lambert", "rd": 1.0}
+    first = jaxlc.scene_from_dict({**SCENE_DICT, "material": [good]}, source="one")
+    again = jaxlc.scene_from_dict({**SCENE_DICT, "material": [dict(good)]}, source="two")
+    assert again.materials == first.materials
+    for bad, message in [
+        ({**good, "rd": True}, "rd"),
+        ({**good, "rd": 1.5}, "rd = 1.5"),
+        ({**good, "extra": 1.0}, "unknown key 'extra'"),
+    ]:
+        with pytest.raises(SceneError, match=message):
+            jaxlc.scene_from_dict({**SCENE_DICT, "material": [bad]}, source="three")
