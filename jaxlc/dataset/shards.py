@@ -222,14 +222,19 @@ def _labels(config, curves, scenes, geos, prepared, instants, visible, pool) -> 
         out.append(row)
     from jaxlc.dataset.store import LABELS
 
-    df = pd.DataFrame(out)
+    # column by column in numpy (pandas' where/astype per column took ~0.2 ms a curve)
+    columns = {}
     for name, (dtype, fill, _) in LABELS.items():
-        if name not in df:
-            df[name] = fill
-        df[name] = df[name].where(df[name].notna(), fill)  # a spin's tumble labels
-        if dtype != "str":
-            df[name] = df[name].astype(dtype)
-    return df[list(LABELS)]
+        values = [_or_fill(row.get(name), fill) for row in out]  # a spin's tumble labels
+        columns[name] = np.array(values, dtype=object if dtype == "str" else dtype)
+    return pd.DataFrame(columns)
+
+
+def _or_fill(value, fill):
+    """``value``, or ``fill`` where it is missing (None or NaN)."""
+    if value is None or (isinstance(value, float | np.floating) and np.isnan(value)):
+        return fill
+    return value
 
 
 _POOLS: dict = {}
