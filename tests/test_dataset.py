@@ -297,6 +297,23 @@ def test_store_without_a_newer_label_resumes(config_path, reference, tmp_path):
     assert np.all(want[reference.labels["visible_samples"].to_numpy() > 0] >= 1)
 
 
+def test_a_store_made_again_at_its_path_is_written_anew(config_path, tmp_path):
+    """write_shard keeps each store's opened arrays for the next shard; a store removed and
+    made again at the same path (another count and seed) must not be written through the
+    old one's arrays: same bytes as at a path never used."""
+    import shutil
+
+    out = tmp_path / "again.zarr"
+    dataset.generate(config_path, out, workers=0, count=8, progress=False)
+    shutil.rmtree(out)
+    again = dataset.generate(config_path, out, workers=0, count=12, seed=5, progress=False)
+    fresh = dataset.generate(
+        config_path, tmp_path / "fresh.zarr", workers=0, count=12, seed=5, progress=False
+    )
+    assert int(again.done.sum()) == len(again.done) and len(again.labels) == 12
+    same_bytes(again, fresh)
+
+
 def test_killed_process_resumes_to_the_uninterrupted_result(tmp_path):
     cfg = tmp_path / "kill.toml"
     cfg.write_text(
