@@ -31,7 +31,7 @@ import numpy as np
 
 from jaxlc.body.attitude import Spin
 from jaxlc.body.facet_model import FacetModel
-from jaxlc.rendering.observation import GeometryArrays
+from jaxlc.rendering.observation import GeometryArrays, row_norm
 
 #: Angle (rad) taken off each facet's closest approach: the kernel's float32 directions
 #: and the attitude's float32 parameters are not the bound's float64 ones.
@@ -93,7 +93,7 @@ def lobe_bound(
 
     rows = np.asarray(rows, np.int64)
     sv = np.take(geo.sun_dir, rows, axis=0) + np.take(geo.obs_dir, rows, axis=0)
-    norm = np.linalg.norm(sv, axis=1)
+    norm = row_norm(sv)
     ok = norm > 1e-9  # α → 180°: no facet is both lit and seen
     h = sv / np.where(ok, norm, 1.0)[:, None]
     hs = 0.5 * norm  # h·s = cos(α/2)
