@@ -19,6 +19,12 @@ C. the error of the automatic choice (B) and of the same mix with motion
    (samples within 5 mag of its median): the worst curve's 95th percentile and
    max, and how many curves miss p95 ≤ 2 mmag or max ≤ 10 mmag.
 
+D. the marginal rate as issue 16 defines it: whole ``generate()`` runs of
+   ``--marginal`` curves (default 200 and 2,200, two workers, fresh processes,
+   interleaved pairs), (2,200 − 200) / (t₂₂₀₀ − t₂₀₀): start-up, compilation and
+   the first shards cancel; the end of the run, where one worker waits for the
+   other's last shard, stays in. Lower than "steady" below by that tail.
+
 Rates are count / wall time of ``generate()``, and "steady": the curves of the
 shards finished after each worker's first one, over the time from the W-th
 finished shard to the last (W workers; without start-up and compilation). Each
@@ -32,7 +38,7 @@ The machine's load average is recorded beside each row: these machines are
 shared, so compare rows of one run. Writes
 ``experiments/results/bench_generate.csv``.
 
-    python experiments/bench_generate.py [--count 1000] [--caps 8,1] [--quick]
+    python experiments/bench_generate.py [--count 1000] [--caps 8,1] [--pairs 2] [--quick]
 """
 
 from __future__ import annotations
@@ -210,8 +216,8 @@ def print_table(df: pd.DataFrame) -> None:
         caption="A: batched kernel per class (in-process, warm); B: whole generate() runs "
         "(fresh process; curves/s includes cluster start-up and compilation, steady: after "
         "each worker's first shard); C: |Δm| of the automatic and capped blur against a fixed "
-        "dense count; "
-        "sub-exp.: instants per exposure, the adaptive refinement's included",
+        "dense count; D: marginal curves/s, the difference of two whole runs (issue 16's "
+        "measure); sub-exp.: instants per exposure, the adaptive refinement's included",
     )
     for col in (
         "table",
@@ -261,6 +267,10 @@ def main(argv=None) -> int:
     parser.add_argument(
         "--dense", type=int, default=256, help="sub-exposures of the reference of table C"
     )
+    parser.add_argument(
+        "--marginal", default="200,2200", help="curve counts of table D's whole runs"
+    )
+    parser.add_argument("--pairs", type=int, default=2, help="interleaved pairs of table D")
     parser.add_argument("--quick", action="store_true", help="a few curves (smoke test)")
     parser.add_argument("--out", type=Path, default=HERE / "results" / "bench_generate.csv")
     args = parser.parse_args(argv)
@@ -329,6 +339,24 @@ def main(argv=None) -> int:
                         **{**e, "variant": f"  {e['variant']}"},
                     ),
                 )
+        small, large = (24, 48) if args.quick else map(int, args.marginal.split(","))
+        for pair in range(1 if args.quick else args.pairs):
+            t = {}
+            for n in (small, large):
+                t[n], *_, load = run(Path(tmp) / f"marginal{pair}_{n}.zarr", 2, n)
+            rate = (large - small) / (t[large] - t[small])
+            rows.append(
+                dict(
+                    table="D",
+                    variant=f"marginal ({large:,} − {small:,} curves)",
+                    workers=2,
+                    curves=large - small,
+                    seconds=t[large] - t[small],
+                    lightcurves_per_s=rate,
+                    load_avg=load,
+                )
+            )
+            print(f"marginal, workers 2, pair {pair + 1}: {rate:.1f} curves/s", flush=True)
     df = pd.DataFrame(rows)
     df.attrs.update(
         provenance(
