@@ -63,15 +63,13 @@ class FacetModel(eqx.Module):
         return jax.tree_util.tree_map(lambda x: jnp.asarray(x, dtype=dtype), self)
 
 
-def _concrete(coef: list[dict]) -> bool:
-    """Whether every coefficient is a plain number (not a JAX tracer)."""
+def _plain_values(coef: list[dict]) -> tuple | None:
+    """Each part's :data:`COEFFICIENTS` as plain floats (one tuple a part), or None where
+    any is a JAX tracer (a model differentiated in its materials)."""
     try:
-        for c in coef:
-            for v in c.values():
-                np.asarray(v, dtype=np.float64)
+        return tuple(tuple(float(np.asarray(c[k], np.float64)) for k in COEFFICIENTS) for c in coef)
     except (TypeError, jax.errors.TracerArrayConversionError, jax.errors.ConcretizationTypeError):
-        return False
-    return True
+        return None
 
 
 def facet_model(
@@ -110,8 +108,8 @@ def facet_model(
         anisotropic=any(m.anisotropic for m in materials),
     )
     axes = tuple(tuple(m.tangent_axis) for m in materials)
-    if _concrete(coef):  # the same shape and materials at every size: made once
-        values = tuple(tuple(float(np.asarray(c[k])) for k in COEFFICIENTS) for c in coef)
+    values = _plain_values(coef)
+    if values is not None:  # the same shape and materials at every size: made once
         unit = _unit_model(facets, values, axes, dtype.str, n_facets or len(facets.part))
         scale = np.asarray(area_scale, dtype)
         arrays = dict(zip(UNIT_FIELDS, unit, strict=True))
@@ -152,10 +150,8 @@ def _unit_model(facets: Facets, values: tuple, axes: tuple, dtype: str, n_facets
     for i, k in enumerate(COEFFICIENTS):
         out[k] = per_part[part, i] * (area if k in AREA_FIELDS else 1.0)
     extra = n_facets - len(part)
-    if extra > 0:  # inert facets, as pad_facets
-        for k, x in out.items():
-            fill = [0.0, 0.0, 1.0] if x.ndim == 2 else 1.0 if k in ("nu", "nv") else 0.0
-            out[k] = np.concatenate([x, np.broadcast_to(np.asarray(fill), (extra, *x.shape[1:]))])
+    if extra > 0:
+        out = {k: np.concatenate([x, _inert(k, x, extra)]) for k, x in out.items()}
     return tuple(np.array(out[k], dtype) for k in UNIT_FIELDS)
 
 
@@ -214,14 +210,19 @@ def pad_facets(model: FacetModel, n_facets: int, flags: dict | None = None) -> F
         x = getattr(model, field.name)
         if extra > 0:
             xp = np if isinstance(x, np.ndarray) else jnp
-            if x.ndim == 2:
-                fill = xp.broadcast_to(xp.asarray([0.0, 0.0, 1.0], x.dtype), (extra, 3))
-            else:
-                fill = xp.full((extra,), 1.0 if field.name in ("nu", "nv") else 0.0, x.dtype)
-            x = xp.concatenate([x, fill])
+            x = xp.concatenate([x, _inert(field.name, x, extra)])
         arrays[field.name] = x
     flags = flags or {f: getattr(model, f) for f in FLAGS}
     return FacetModel(**arrays, **flags)
+
+
+def _inert(name: str, x, extra: int):
+    """``extra`` rows of field ``name`` (like ``x``, numpy or JAX) for inert facets: zero
+    coefficients, exponents 1, normals and tangents +z."""
+    xp = np if isinstance(x, np.ndarray) else jnp
+    if x.ndim == 2:
+        return xp.broadcast_to(xp.asarray([0.0, 0.0, 1.0], x.dtype), (extra, 3))
+    return xp.full((extra,), 1.0 if name in ("nu", "nv") else 0.0, x.dtype)
 
 
 def facet_slice(model: FacetModel, start: int, stop: int) -> FacetModel:
