@@ -11,13 +11,16 @@ B. whole runs into a fresh Zarr store: in-process (``workers=0``) and on a
    local Dask cluster with 1 and 2 worker processes — wall time of
    ``generate()`` including cluster start-up, compilation in every worker and
    writing, so light curves/s = count / wall time;
-C. the error of the automatic choice (B) and of the same mix with motion
+C. the error of the automatic choice (B), of the same mix with motion
    blur capped at ``--caps`` sub-exposures per exposure (2 workers; 1 = no
-   blur), against a dense reference of ``--dense`` sub-exposures for every
-   curve, on the very same curves (same seed): median / 95th percentile /
-   max |Δm| over visible samples, for all curves and per class, and per curve
-   (samples within 5 mag of its median): the worst curve's 95th percentile and
-   max, and how many curves miss p95 ≤ 2 mmag or max ≤ 10 mmag.
+   blur) and of the adaptive quadrature at ``--tolerances`` (mag an exposure;
+   the config's is 1 mmag), against a dense reference of ``--dense``
+   sub-exposures for every curve, on the very same curves (same seed): median /
+   95th percentile / max |Δm| over visible samples, for all curves and per
+   class, and per curve (samples within 5 mag of its median): the worst curve's
+   95th percentile and max, and how many curves miss p95 ≤ 2 mmag or max ≤ 10
+   mmag. (A looser tolerance is faster, but its worst sample nears 10 mmag: on
+   2026-12-07, 9.0 and 11.1 mmag at 2 and 3 mmag against 6.3 at 1.)
 
 D. the marginal rate as issue 16 defines it: whole ``generate()`` runs of
    ``--marginal`` curves (default 200 and 2,200, two workers, fresh processes,
@@ -38,7 +41,8 @@ The machine's load average is recorded beside each row: these machines are
 shared, so compare rows of one run. Writes
 ``experiments/results/bench_generate.csv``.
 
-    python experiments/bench_generate.py [--count 1000] [--caps 8,1] [--pairs 2] [--quick]
+    python experiments/bench_generate.py [--count 1000] [--caps 8,1] [--tolerances 0.002,0.003]
+        [--pairs 2] [--quick]
 """
 
 from __future__ import annotations
@@ -78,6 +82,10 @@ if cap > 0:  # cap the automatic sub-exposure count of every class
 elif cap < 0:  # a fixed count for every curve: the dense reference
     cfg = dc.replace(cfg, classes=tuple(
         dc.replace(c, render=dc.replace(c.render, subsamples=-cap)) for c in cfg.classes))
+tol = float(sys.argv[6])
+if tol > 0:  # another tolerance of the adaptive quadrature for every class
+    cfg = dc.replace(cfg, classes=tuple(
+        dc.replace(c, render=dc.replace(c.render, blur_tolerance_mag=tol)) for c in cfg.classes))
 stamps = []  # (time, shard) as each shard is written
 n_workers = int(sys.argv[3])
 workers = max(n_workers, 1)  # processes rendering (0: this one)
@@ -140,8 +148,9 @@ def class_rates(config, count, repeats=2):
     return rows
 
 
-def run(store, workers, count, cap=0):
-    """One generate() in a fresh process.
+def run(store, workers, count, cap=0, tolerance_mag=0.0):
+    """One generate() in a fresh process (``cap`` > 0: sub-exposures capped; < 0: that
+    many for every exposure; ``tolerance_mag`` > 0: the adaptive quadrature's tolerance).
 
     Returns:
         (seconds, curves, renders (kernel instants), mean instants per exposure,
@@ -149,7 +158,8 @@ def run(store, workers, count, cap=0):
     """
     load = os.getloadavg()[0]
     r = subprocess.run(
-        [sys.executable, "-c", RUN, str(CONFIG), str(store), str(workers), str(count), str(cap)],
+        [sys.executable, "-c", RUN, str(CONFIG), str(store)]
+        + [str(x) for x in (workers, count, cap, tolerance_mag)],
         capture_output=True,
         text=True,
         timeout=3600,
@@ -215,9 +225,10 @@ def print_table(df: pd.DataFrame) -> None:
         title="jaxlc bulk generation: the standard mix (S3–S6, 1,800 samples, auto shadows/blur)",
         caption="A: batched kernel per class (in-process, warm); B: whole generate() runs "
         "(fresh process; curves/s includes cluster start-up and compilation, steady: after "
-        "each worker's first shard); C: |Δm| of the automatic and capped blur against a fixed "
-        "dense count; D: marginal curves/s, the difference of two whole runs (issue 16's "
-        "measure); sub-exp.: instants per exposure, the adaptive refinement's included",
+        "each worker's first shard); C: |Δm| of the automatic blur, capped or at other "
+        "tolerances, against a fixed dense count; D: marginal curves/s, the difference of "
+        "two whole runs (issue 16's measure); sub-exp.: instants per exposure, the adaptive "
+        "refinement's included",
     )
     for col in (
         "table",
@@ -265,6 +276,11 @@ def main(argv=None) -> int:
     parser.add_argument("--caps", default="8,1", help="sub-exposure caps of table C")
     parser.add_argument("--workers", default="0,1,2", help="worker counts of table B")
     parser.add_argument(
+        "--tolerances",
+        default="0.002,0.003",
+        help="other tolerances (mag an exposure) of the adaptive quadrature in table C",
+    )
+    parser.add_argument(
         "--dense", type=int, default=256, help="sub-exposures of the reference of table C"
     )
     parser.add_argument(
@@ -279,21 +295,31 @@ def main(argv=None) -> int:
     rows = class_rates(config, min(count, 200), repeats=1 if args.quick else 2)
 
     caps = [int(c) for c in args.caps.split(",") if c.strip()]
-    variants = (
-        [(0, int(w)) for w in args.workers.split(",")] + [(c, 2) for c in caps] + [(-args.dense, 2)]
+    tols = [float(t) for t in args.tolerances.split(",") if t.strip()]
+    variants = (  # (cap, workers, tolerance): 0 = the config's own
+        [(0, int(w), 0.0) for w in args.workers.split(",")]
+        + [(c, 2, 0.0) for c in caps]
+        + [(0, 2, t) for t in tols]
+        + [(-args.dense, 2, 0.0)]
     )
+
+    def label(cap, tol):
+        if cap:
+            return f"blur ≤ {cap} sub-exposure(s)"
+        return f"auto, {1e3 * tol:g} mmag an exposure" if tol else "standard mix"
+
     with tempfile.TemporaryDirectory(prefix="bench_generate_") as tmp:
         stores = {}
-        for cap, workers in variants:
-            store = Path(tmp) / f"cap{cap}_workers{workers}.zarr"
-            seconds, curves, renders, instants, steady, load = run(store, workers, count, cap)
-            stores[(cap, workers)] = store
+        for cap, workers, tol in variants:
+            store = Path(tmp) / f"cap{cap}_workers{workers}_tol{tol:g}.zarr"
+            seconds, curves, renders, instants, steady, load = run(store, workers, count, cap, tol)
+            stores[(cap, workers, tol)] = store
             if cap < 0:  # the reference: only its errors are reported
                 continue
             rows.append(
                 dict(
-                    table="C" if cap else "B",
-                    variant=f"blur ≤ {cap} sub-exposure(s)" if cap else "standard mix",
+                    table="C" if cap or tol else "B",
+                    variant=label(cap, tol),
                     workers=workers if workers else "in-process",
                     curves=curves,
                     subsamples_mean=instants,
@@ -304,13 +330,13 @@ def main(argv=None) -> int:
                     load_avg=load,
                 )
             )
-            name = f"cap {cap}" if cap else "auto"
+            name = f"cap {cap}" if cap else f"tolerance {tol:g} mag" if tol else "auto"
             print(
                 f"{name}, workers {workers}: {curves / seconds:.1f} curves/s "
                 f"({steady:.1f} after each worker's first shard)",
                 flush=True,
             )
-        auto = [k for k in stores if k[0] == 0]
+        auto = [k for k in stores if k[0] == 0 and k[2] == 0]
         auto_mag = jaxlc.dataset.open(stores[auto[-1]]).load("mag")
         same = [
             bool(
@@ -318,14 +344,14 @@ def main(argv=None) -> int:
             )
             for k in auto
         ]
-        ref = jaxlc.dataset.open(stores[(-args.dense, 2)])
-        for cap in [0, *caps]:
-            capped = jaxlc.dataset.open(stores[(cap, 2)] if cap else stores[auto[-1]])
+        ref = jaxlc.dataset.open(stores[(-args.dense, 2, 0.0)])
+        for cap, tol in [(0, 0.0), *((c, 0.0) for c in caps), *((0, t) for t in tols)]:
+            capped = jaxlc.dataset.open(stores[(cap, 2, tol)] if cap or tol else stores[auto[-1]])
             per_class = errors(ref, capped)
-            label = f"blur ≤ {cap} sub-exposure(s)" if cap else f"auto vs {args.dense}"
-            if not cap:
-                rows.append(dict(table="C", variant=label, workers=auto[-1][1]))
-            at = next(i for i, r in enumerate(rows) if r["variant"] == label)
+            name = label(cap, tol) if cap or tol else f"auto vs {args.dense}"
+            if not (cap or tol):
+                rows.append(dict(table="C", variant=name, workers=auto[-1][1]))
+            at = next(i for i, r in enumerate(rows) if r["variant"] == name)
             rows[at].update({k: v for k, v in per_class[0].items() if k != "variant"})
             subs = capped.labels.groupby("class", observed=True)["instants_per_exposure"].mean()
             for j, e in enumerate(per_class[1:], 1):
