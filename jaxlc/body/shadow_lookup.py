@@ -70,12 +70,20 @@ def lit_seen_columns(
                 total = total + w * count(row_s[:, lo:hi] & row_v[:, lo:hi])
         return total
 
-    shared = tuple(g for g in table.groups if g[1] < 32)  # runs that share words: first
-    split = sum(-(-n * k // 32) for n, k in shared)
-    parts = [weighted(lambda x: _slot_counts(x, shared, dtype), 0, split)] if shared else []
-    if split < table.bits.shape[1]:
+    parts, start = [], 0
+    for n_facets, k in table.groups:  # runs that share words first (k < 32)
+        if k >= 32:
+            break
+        n_words = -(-n_facets * k // 32)
+        slots = [  # slot j of every word: facets j·n_words … (slot-major, shared_words)
+            weighted(lambda x, j=j, k=k: _slot_count(x, j, k, dtype), start, start + n_words)
+            for j in range(32 // k)
+        ]
+        parts.append(jnp.concatenate(slots, axis=1)[:, :n_facets])
+        start += n_words
+    if start < table.bits.shape[1]:
         count = lambda x: jax.lax.population_count(x).astype(dtype)  # noqa: E731
-        parts.append(weighted(count, split, table.bits.shape[1]))
+        parts.append(weighted(count, start, table.bits.shape[1]))
     columns = parts[0] if len(parts) == 1 else jnp.concatenate(parts, axis=1)
     return columns / table.divisor.astype(dtype)[None, :]
 
@@ -178,17 +186,36 @@ def column_fractions(table: ShadowTable, columns: Float[Array, "T V"]) -> Float[
     return parts[0] if len(parts) == 1 else jnp.concatenate(parts, axis=1)
 
 
-def _slot_counts(words, groups, dtype):
-    """(T, Σ facets) set bits of each facet in words (T, W) shared by 32/k facets each."""
-    parts, start = [], 0
-    for n_facets, k in groups:
-        n_words = -(-n_facets * k // 32)
-        shifts = jnp.arange(0, 32, k, dtype=jnp.uint32)[None, None, :]
-        x = words[:, start : start + n_words, None]
-        slots = jax.lax.population_count((x >> shifts) & jnp.uint32((1 << k) - 1))
-        parts.append(slots.reshape(x.shape[0], -1)[:, :n_facets].astype(dtype))
-        start += n_words
-    return parts[0] if len(parts) == 1 else jnp.concatenate(parts, axis=1)
+def _slot_count(words, slot: int, k: int, dtype):
+    """Set bits of slot ``slot`` (bits k·slot … k·slot + k − 1) of each word, as ``dtype``."""
+    mask = jnp.uint32((1 << k) - 1)
+    return jax.lax.population_count((words >> jnp.uint32(k * slot)) & mask).astype(dtype)
+
+
+def shared_words(bits: np.ndarray, n_facets: int, k: int) -> np.ndarray:
+    """The words of a run of facets with k < 32 sub-points each, slot-major.
+
+    :func:`jaxlc.body.raycast.word_layout` packs facet i into slot i mod 32/k of word
+    ⌊i k / 32⌋; the device copy puts it into slot ⌊i / W⌋ of word i mod W (W words),
+    so that slot j of every word holds facets j W … (j + 1) W − 1 in order: the
+    look-up counts each slot over all words at once, one fused loop per slot
+    (counting every word's slots together and regrouping them made S4's look-up 12×
+    slower).
+
+    Args:
+        bits: (D, W) the run's words as stored (uint32).
+    Returns:
+        (D, W) the same bits, slot-major.
+    """
+    slots, n_words = 32 // k, bits.shape[1]
+    mask = np.uint32((1 << k) - 1)
+    i = np.arange(n_facets)
+    values = (bits[:, i // slots] >> (k * (i % slots)).astype(np.uint32)) & mask
+    out = np.zeros_like(bits)
+    for j in range(slots):
+        block = values[:, j * n_words : (j + 1) * n_words]
+        out[:, : block.shape[1]] |= block << np.uint32(k * j)
+    return out
 
 
 def shadow_table(data: ShadowData, dtype=jnp.float32) -> ShadowTable:
@@ -197,8 +224,16 @@ def shadow_table(data: ShadowData, dtype=jnp.float32) -> ShadowTable:
     if memo in _TABLES:
         return _TABLES[memo]
     order = word_major(data.groups)
+    bits, start = data.bits[:, order], 0
+    for n_facets, k in data.groups:
+        n_words = -(-n_facets * k // 32) if k < 32 else n_facets * (k // 32)
+        if k < 32:
+            bits[:, start : start + n_words] = shared_words(
+                bits[:, start : start + n_words], n_facets, k
+            )
+        start += n_words
     table = ShadowTable(
-        bits=jnp.asarray(data.bits[:, order]),
+        bits=jnp.asarray(bits),
         divisor=jnp.asarray(column_divisors(data.groups), dtype=dtype),
         groups=data.groups,
         grid=data.settings.grid,
