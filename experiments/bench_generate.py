@@ -37,11 +37,8 @@ shard rendered before it: with 2 workers and 10 shards, 900 curves for 800
 (+12.5 %; this file's figures before 2026-12-07 did so).
 
 Each run of B and C is a fresh Python process (no compilation carried over).
-The machine's load average and its speed just before each run (``probe_ms``:
-one S4 kernel call, :func:`timing.speed_probe`) are recorded beside each row:
-these machines are shared and their speed drifts by up to 1.7× within an hour,
-so compare rows of one run, or rates at like probes (a rate scales about as
-1 / probe). Writes
+The machine's load average is recorded beside each row: these machines are
+shared, so compare rows of one run. Writes
 ``experiments/results/bench_generate.csv``.
 
     python experiments/bench_generate.py [--count 1000] [--caps 8,1] [--tolerances 0.002,0.003]
@@ -66,7 +63,6 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 
 from run_info import provenance  # noqa: E402
-from timing import speed_probe  # noqa: E402
 
 import jaxlc  # noqa: E402
 from jaxlc.dataset import draw_curve, load_config  # noqa: E402
@@ -158,10 +154,8 @@ def run(store, workers, count, cap=0, tolerance_mag=0.0):
 
     Returns:
         (seconds, curves, renders (kernel instants), mean instants per exposure,
-        curves/s after each worker's first shard, load average, the machine's speed
-        just before: :func:`timing.speed_probe`, ms).
+        curves/s after each worker's first shard, load average).
     """
-    probe = speed_probe()
     load = os.getloadavg()[0]
     r = subprocess.run(
         [sys.executable, "-c", RUN, str(CONFIG), str(store)]
@@ -175,8 +169,7 @@ def run(store, workers, count, cap=0, tolerance_mag=0.0):
         raise RuntimeError(f"generate (workers={workers}) failed:\n{r.stderr[-3000:]}")
     out = json.loads(r.stdout.strip().splitlines()[-1])
     load = max(load, os.getloadavg()[0])
-    steady = out["steady"]
-    return out["seconds"], out["curves"], out["renders"], out["instants"], steady, load, probe
+    return out["seconds"], out["curves"], out["renders"], out["instants"], out["steady"], load
 
 
 #: Samples fainter than this many magnitudes below their curve's median are left out of
@@ -250,7 +243,6 @@ def print_table(df: pd.DataFrame) -> None:
         "|Δm| med / p95 / max",
         "worst curve p95 / max (over)",
         "load",
-        "probe ms",
     ):
         table.add_column(col, justify="left" if col in ("table", "variant") else "right")
     for r in df.itertuples():
@@ -274,7 +266,6 @@ def print_table(df: pd.DataFrame) -> None:
             err,
             per_curve,
             _fmt(r.load_avg, ".1f"),
-            _fmt(getattr(r, "probe_ms", np.nan), ".2f"),
         )
     Console(width=210).print(table)
 
@@ -321,9 +312,7 @@ def main(argv=None) -> int:
         stores = {}
         for cap, workers, tol in variants:
             store = Path(tmp) / f"cap{cap}_workers{workers}_tol{tol:g}.zarr"
-            seconds, curves, renders, instants, steady, load, probe = run(
-                store, workers, count, cap, tol
-            )
+            seconds, curves, renders, instants, steady, load = run(store, workers, count, cap, tol)
             stores[(cap, workers, tol)] = store
             if cap < 0:  # the reference: only its errors are reported
                 continue
@@ -339,13 +328,12 @@ def main(argv=None) -> int:
                     lightcurves_per_s=curves / seconds,
                     steady_lightcurves_per_s=steady,
                     load_avg=load,
-                    probe_ms=probe,
                 )
             )
             name = f"cap {cap}" if cap else f"tolerance {tol:g} mag" if tol else "auto"
             print(
                 f"{name}, workers {workers}: {curves / seconds:.1f} curves/s "
-                f"({steady:.1f} after each worker's first shard; probe {probe:.2f} ms)",
+                f"({steady:.1f} after each worker's first shard)",
                 flush=True,
             )
         auto = [k for k in stores if k[0] == 0 and k[2] == 0]
@@ -379,10 +367,9 @@ def main(argv=None) -> int:
                 )
         small, large = (24, 48) if args.quick else map(int, args.marginal.split(","))
         for pair in range(1 if args.quick else args.pairs):
-            t, probes = {}, []
+            t = {}
             for n in (small, large):
-                t[n], *_, load, probe = run(Path(tmp) / f"marginal{pair}_{n}.zarr", 2, n)
-                probes.append(probe)
+                t[n], *_, load = run(Path(tmp) / f"marginal{pair}_{n}.zarr", 2, n)
             rate = (large - small) / (t[large] - t[small])
             rows.append(
                 dict(
@@ -393,14 +380,9 @@ def main(argv=None) -> int:
                     seconds=t[large] - t[small],
                     lightcurves_per_s=rate,
                     load_avg=load,
-                    probe_ms=float(np.mean(probes)),
                 )
             )
-            print(
-                f"marginal, workers 2, pair {pair + 1}: {rate:.1f} curves/s "
-                f"(probe {np.mean(probes):.2f} ms)",
-                flush=True,
-            )
+            print(f"marginal, workers 2, pair {pair + 1}: {rate:.1f} curves/s", flush=True)
     df = pd.DataFrame(rows)
     df.attrs.update(
         provenance(

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import functools
 import time
 
 import jax
@@ -45,27 +44,3 @@ def timed_interleaved(fns: dict, min_total_s=1.0, min_rounds=5, max_rounds=40):
         q25, med, q75 = np.percentile(ts, [25, 50, 75])
         out[k] = (float(med), float(q75 - q25), len(ts))
     return out
-
-
-@functools.cache
-def _probe_call():
-    from bench_render import pass_geometry
-
-    import jaxlc
-    from jaxlc.rendering.kernel import exposure_intensity
-    from jaxlc.xla import jit
-
-    prepared = jaxlc.prepare(
-        "s4_falcon9", pass_geometry(1800), options=jaxlc.RenderOptions(blur="off")
-    )
-    kernel = jit(exposure_intensity)
-    return lambda: kernel(prepared.object, prepared.inputs)
-
-
-def speed_probe(min_total_s: float = 1.0) -> float:
-    """The machine's speed now: milliseconds of one S4 kernel call (1,205 facets with
-    shadows, 1,800 instants, float32; median over ``min_total_s``), the work that
-    dominates bulk generation. These machines are shared and their speed drifts by up
-    to 1.7× within an hour; a rate measured beside a probe can be compared with one
-    measured beside another (the rate scales about as 1 / probe)."""
-    return 1e3 * timed(_probe_call(), min_total_s=min_total_s)[0]
