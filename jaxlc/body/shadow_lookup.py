@@ -199,8 +199,9 @@ def shared_words(bits: np.ndarray, n_facets: int, k: int) -> np.ndarray:
     ⌊i k / 32⌋; the device copy puts it into slot ⌊i / W⌋ of word i mod W (W words),
     so that slot j of every word holds facets j W … (j + 1) W − 1 in order: the
     look-up counts each slot over all words at once, one fused loop per slot
-    (counting every word's slots together and regrouping them made S4's look-up 12×
-    slower).
+    (counting every word's slots together and regrouping them made the look-up 6–7×
+    slower: S4 with sub-points by area, 405 words, 23–30 against 4.1 ms per 1,800
+    instants).
 
     Args:
         bits: (D, W) the run's words as stored (uint32).
