@@ -297,6 +297,30 @@ def test_store_without_a_newer_label_resumes(config_path, reference, tmp_path):
     assert np.all(want[reference.labels["visible_samples"].to_numpy() > 0] >= 1)
 
 
+def test_a_store_with_an_older_codec_resumes_to_the_same_values(
+    config_path, reference, tmp_path, monkeypatch
+):
+    """A store begun with zarr's default codec (Zstandard, as before store.ARRAY_CODEC)
+    is resumed in its own codec, and reads back the values of a store made today."""
+    import zarr
+
+    out = tmp_path / "zstd.zarr"
+    monkeypatch.setattr(zarr.codecs, "BloscCodec", lambda **_: zarr.codecs.ZstdCodec(level=0))
+
+    def stop_after_one(k):
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        dataset.generate(config_path, out, workers=0, progress=False, on_shard=stop_after_one)
+    monkeypatch.undo()
+    ds = dataset.generate(config_path, out, workers=0, progress=False)
+    codec = zarr.open_group(str(out), mode="r")["mag"].compressors
+    assert [type(c).__name__ for c in codec] == ["ZstdCodec"]
+    ref_codec = zarr.open_group(str(reference.path), mode="r")["mag"].compressors
+    assert [type(c).__name__ for c in ref_codec] == ["BloscCodec"]
+    same_bytes(ds, reference)
+
+
 def test_a_store_made_again_at_its_path_is_written_anew(config_path, tmp_path):
     """write_shard keeps each store's opened arrays for the next shard; a store removed and
     made again at the same path (another count and seed) must not be written through the
