@@ -321,6 +321,24 @@ def test_a_store_with_an_older_codec_resumes_to_the_same_values(
     same_bytes(ds, reference)
 
 
+def test_workers_from_a_script_on_stdin_are_refused_with_the_fix(
+    config_path, tmp_path, monkeypatch
+):
+    """Worker processes re-import the caller's main module, which a script read from
+    stdin does not have: one clear error before anything is written, not Dask's
+    traceback of a nanny that failed to start."""
+    import sys
+    import types
+
+    main = types.ModuleType("__main__")
+    main.__file__ = "<stdin>"
+    monkeypatch.setitem(sys.modules, "__main__", main)
+    out = tmp_path / "stdin.zarr"
+    with pytest.raises(DatasetError, match=r"read from '<stdin>'.*file.*workers = 0"):
+        dataset.generate(config_path, out, workers=2, progress=False)
+    assert not out.exists()
+
+
 def test_a_store_made_again_at_its_path_is_written_anew(config_path, tmp_path):
     """write_shard keeps each store's opened arrays for the next shard; a store removed and
     made again at the same path (another count and seed) must not be written through the

@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import contextlib
 import os
+import sys
 
+from jaxlc.dataset.config import DatasetError
 from jaxlc.dataset.shards import WORKER_CACHE_ENV
 from jaxlc.io.cache import cache_dir
 from jaxlc.xla import XLA_CACHE_ENV
@@ -46,14 +48,37 @@ def local_cluster(n_workers: int):
     import dask
     from distributed import LocalCluster
 
+    check_spawnable()
     with dask.config.set({"distributed.nanny.pre-spawn-environ": spawn_environ(), **QUIET_CONFIG}):
-        return LocalCluster(
-            n_workers=n_workers,
-            threads_per_worker=1,
-            processes=True,
-            dashboard_address=None,
-            silence_logs=logging.ERROR,
-            env=worker_env(n_workers),
+        try:
+            return LocalCluster(
+                n_workers=n_workers,
+                threads_per_worker=1,
+                processes=True,
+                dashboard_address=None,
+                silence_logs=logging.ERROR,
+                env=worker_env(n_workers),
+            )
+        except RuntimeError as exc:  # Dask's "Nanny failed to start." (the cause: stderr)
+            raise DatasetError(
+                f"local Dask workers (workers = {n_workers}) did not start "
+                f"({' '.join(str(exc).split())}); render in this process with workers = 0 "
+                "(--workers 0), or start a cluster yourself and pass its --scheduler"
+            ) from None
+
+
+def check_spawnable() -> None:
+    """Refuse, with the fix, to start local workers that cannot start: a worker process
+    begins by importing the caller's main module again (multiprocessing's spawn), which
+    a script read from stdin (``python - <<EOF``) does not have as a file; Dask then
+    fails with a traceback of its own. (``python -c``, notebooks, files and the CLI can.)
+    """
+    path = getattr(sys.modules.get("__main__"), "__file__", None)
+    if isinstance(path, str) and not os.path.exists(path):
+        raise DatasetError(
+            f"local Dask workers cannot start from a script read from {path!r} (each "
+            "worker imports the main module again): save the script to a file, or render "
+            "in this process with workers = 0"
         )
 
 
