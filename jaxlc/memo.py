@@ -44,6 +44,15 @@ def _freeze(out):
     return out
 
 
+def remember(memo: dict, key, value, maxsize: int):
+    """Put ``value`` into the dict ``memo`` under ``key``, first dropping its oldest entries
+    while it holds ``maxsize`` (first in, first out); returns ``value``."""
+    while len(memo) >= maxsize:
+        memo.pop(next(iter(memo)))
+    memo[key] = value
+    return value
+
+
 def identity_memo(maxsize: int = 8):
     """Decorator: remember the last ``maxsize`` results of a function of positional
     arguments (first in, first out). ``f.cache_clear()`` empties it.
@@ -65,9 +74,7 @@ def identity_memo(maxsize: int = 8):
             if hit is not None:
                 return hit[1]
             out = _freeze(fn(*args))
-            while len(memo) >= maxsize:
-                memo.pop(next(iter(memo)))
-            memo[key] = (args, out)  # the arguments pin their ids
+            remember(memo, key, (args, out), maxsize)  # the arguments pin their ids
             return out
 
         wrapper.cache_clear = memo.clear

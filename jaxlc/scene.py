@@ -44,7 +44,7 @@ from jaxlc.body.brdf import BRDFS, AbstractBRDF
 from jaxlc.body.mesh import Facets, TriangleMesh, load_body
 from jaxlc.errors import SceneError
 from jaxlc.io.toml import Section, in_range, nonzero_vector, read_toml
-from jaxlc.memo import identity_memo
+from jaxlc.memo import identity_memo, remember
 from jaxlc.rendering.options import RenderOptions, render_options_from_table
 from jaxlc.scene_attitude import AttitudeSpec, parse_attitude
 
@@ -316,9 +316,7 @@ def _parse_material(entry, where) -> MaterialSpec:
     if spec is None:
         spec = _parse_material_table(entry, where)  # an invalid table raises: never kept
         if key is not None:
-            if len(_MATERIALS) >= MATERIAL_MEMO:
-                _MATERIALS.pop(next(iter(_MATERIALS)))
-            _MATERIALS[key] = spec
+            remember(_MATERIALS, key, spec, MATERIAL_MEMO)
     return spec
 
 

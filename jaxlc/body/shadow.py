@@ -43,7 +43,7 @@ from jaxlc.body.raycast import trace_visibility, word_layout
 from jaxlc.errors import JaxlcError
 from jaxlc.io.cache import cache_dir
 from jaxlc.io.files import atomic_output
-from jaxlc.memo import identity_memo
+from jaxlc.memo import identity_memo, remember
 
 #: Bump when the precomputation changes: cached tables of older versions are ignored.
 ALGORITHM_VERSION = 5
@@ -317,9 +317,7 @@ def shadow_data(
                 pass  # read-only home: work without a disk cache
         data = ShadowData(bits, facet_ids, counts, settings, seconds, False, stored, key, spacing)
     if use_cache:
-        while len(_LOADED) >= KEEP_TABLES:
-            _LOADED.pop(next(iter(_LOADED)))
-        _LOADED[key, str(path), _stamp(path)] = data
+        remember(_LOADED, (key, str(path), _stamp(path)), data, KEEP_TABLES)
     return data
 
 

@@ -18,6 +18,7 @@ from jaxtyping import Array, Float, Int, UInt32
 
 from jaxlc.body.octahedral import grid_corners
 from jaxlc.body.shadow import KEEP_TABLES, ShadowData
+from jaxlc.memo import remember
 
 #: Device copies of tables in this process, by (cache key, interpolation, dtype).
 _TABLES: dict[tuple[str, str, str], "ShadowTable"] = {}
@@ -74,7 +75,7 @@ def lit_seen_columns(
     for n_facets, k in table.groups:  # runs that share words first (k < 32)
         if k >= 32:
             break
-        n_words = -(-n_facets * k // 32)
+        n_words = run_words(n_facets, k)
         slots = [  # slot j of every word: facets j·n_words … (slot-major, shared_words)
             weighted(lambda x, j=j, k=k: _slot_count(x, j, k, dtype), start, start + n_words)
             for j in range(32 // k)
@@ -161,15 +162,21 @@ def word_major(groups: tuple[tuple[int, int], ...]) -> np.ndarray:
     every facet's first word, then every facet's second, …"""
     order, start = [], 0
     for n_facets, k in groups:
+        n_words = run_words(n_facets, k)
         if k < 32:
-            n_words = -(-n_facets * k // 32)
             order.append(start + np.arange(n_words))
         else:
             words = k // 32
-            n_words = n_facets * words
             order.append(start + np.arange(n_words).reshape(n_facets, words).T.reshape(-1))
         start += n_words
     return np.concatenate(order)
+
+
+def run_words(n_facets: int, k: int) -> int:
+    """uint32 words of a run of ``n_facets`` facets with ``k`` sub-points each: 32/k
+    facets to a word below 32 (the last word padded), k/32 words a facet from 32 on
+    (:func:`jaxlc.body.raycast.word_layout`)."""
+    return -(-n_facets * k // 32) if k < 32 else n_facets * (k // 32)
 
 
 def lit_seen_fraction(
@@ -226,13 +233,12 @@ def shadow_table(data: ShadowData, dtype=jnp.float32) -> ShadowTable:
         return _TABLES[memo]
     order = word_major(data.groups)
     bits, start = data.bits[:, order], 0
-    for n_facets, k in data.groups:
-        n_words = -(-n_facets * k // 32) if k < 32 else n_facets * (k // 32)
-        if k < 32:
-            bits[:, start : start + n_words] = shared_words(
-                bits[:, start : start + n_words], n_facets, k
-            )
-        start += n_words
+    for n_facets, k in data.groups:  # runs that share words first (k < 32)
+        if k >= 32:
+            break
+        run = slice(start, start + run_words(n_facets, k))
+        bits[:, run] = shared_words(bits[:, run], n_facets, k)
+        start = run.stop
     table = ShadowTable(
         bits=jnp.asarray(bits),
         divisor=jnp.asarray(column_divisors(data.groups), dtype=dtype),
@@ -241,7 +247,5 @@ def shadow_table(data: ShadowData, dtype=jnp.float32) -> ShadowTable:
         interpolation=data.settings.interpolation,
     )
     if memo is not None:
-        while len(_TABLES) >= KEEP_TABLES:
-            _TABLES.pop(next(iter(_TABLES)))
-        _TABLES[memo] = table
+        remember(_TABLES, memo, table, KEEP_TABLES)
     return table

@@ -47,6 +47,7 @@ import pandas as pd
 
 from jaxlc.dataset.config import DatasetError
 from jaxlc.io.provenance import git_commit, jaxlc_version
+from jaxlc.memo import remember
 
 #: Codec of the (N, T) arrays: LZ4 over bit-shuffled values. Against zarr's default
 #: (Zstandard, level 0) a shard of the standard mix is written (:func:`write_shard`, its
@@ -385,9 +386,7 @@ def write_shard(path: str | Path, shard: int, start: int, arrays: dict, labels: 
     st = os.stat(path / "zarr.json")
     key, ident = str(path), (st.st_ino, st.st_size, st.st_mtime_ns)
     if key not in _OPEN or _OPEN[key][0] != ident:
-        while len(_OPEN) >= OPEN_STORES:
-            _OPEN.pop(next(iter(_OPEN)))
-        _OPEN[key] = (ident, {})
+        remember(_OPEN, key, (ident, {}), OPEN_STORES)
     handles = _OPEN[key][1]
 
     async def write_all():

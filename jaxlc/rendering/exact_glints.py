@@ -41,6 +41,7 @@ from jaxlc.body.mesh import Facets, TriangleMesh
 from jaxlc.body.shadow import KEEP_TABLES, ShadowData
 from jaxlc.body.shadow_clip import ClipData, blocked_area
 from jaxlc.body.shadow_rays import RayData, ray_data, ray_fraction
+from jaxlc.memo import remember
 
 #: Kits made in this process, by (table cache key, dtype).
 _KITS: dict[tuple[str, str], "ExactKit"] = {}
@@ -91,9 +92,7 @@ def kit_for(data: ShadowData, mesh: TriangleMesh, facets: Facets, dtype=np.float
         return _KITS[memo]
     kit = exact_kit(mesh, facets, data.facet_ids, dtype)
     if memo is not None:
-        while len(_KITS) >= KEEP_TABLES:
-            _KITS.pop(next(iter(_KITS)))
-        _KITS[memo] = kit
+        remember(_KITS, memo, kit, KEEP_TABLES)
     return kit
 
 
