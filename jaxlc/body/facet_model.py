@@ -299,6 +299,14 @@ def facet_contributions(
     return total
 
 
+#: From this many facets, :func:`facet_intensity` sums the (T, F) terms as a product with a
+#: vector of ones: XLA:CPU's matrix-vector product reduces them faster than the row
+#: reduction fused into the loop that makes them (S4's 1,104-facet run: its bulk kernel calls
+#: 0.88–0.95× their time, A/B on one pinned core); below it, the fused
+#: reduction is faster (S6's 24 facets: 2.5× slower as a product).
+DOT_SUM_FACETS = 256
+
+
 def facet_intensity(
     model: FacetModel,
     sun_b: Float[Array, "T 3"],
@@ -328,14 +336,6 @@ def facet_intensity(
     if terms.shape[-1] >= DOT_SUM_FACETS:  # the sum as a matrix-vector product
         return terms @ jnp.ones(terms.shape[-1], terms.dtype)
     return jnp.sum(terms, axis=-1)
-
-
-#: From this many facets, :func:`facet_intensity` sums the (T, F) terms as a product with a
-#: vector of ones: XLA:CPU's matrix-vector product reduces them faster than the row
-#: reduction fused into the loop that makes them (S4's 1,104-facet run: the bulk kernel
-#: 8–12 % faster, ``experiments/profile_shard.py --by-class``); below it, the fused
-#: reduction is faster (S6's 24 facets: 2.5× slower as a product).
-DOT_SUM_FACETS = 256
 
 
 _LN2 = 0.6931471805599453
